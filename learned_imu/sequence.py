@@ -1,0 +1,121 @@
+"""Typed records for IMU sequences, the boundary between readers/simulator and everything downstream.
+
+Conventions, for every record in this module:
+- time in seconds (float64), strictly increasing;
+- ``gyro``: angular rate of the IMU frame w.r.t. inertial space, expressed in the IMU frame, rad/s;
+- ``acc``: specific force (reaction to gravity included: about +9.81 m/s^2 up at rest), IMU frame, m/s^2;
+- ``rot``: rotation matrices world <- IMU (``v_world = rot @ v_imu``); quaternions, where a file has them,
+  are converted at the reader and never cross this boundary;
+- world frame is z-up, gravity vector ``gravity`` is expressed in it (e.g. ``[0, 0, -9.81]``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from learned_imu.errors import DataError
+
+
+def _check_array(source: object, field: str, value: np.ndarray, shape_tail: tuple[int, ...], n: int | None):
+    if not isinstance(value, np.ndarray):
+        raise DataError(source, field, f"expected a numpy array, got {type(value).__name__}")
+    if value.shape[1:] != shape_tail or (n is not None and value.shape[0] != n):
+        want = ("N" if n is None else str(n),) + tuple(str(s) for s in shape_tail)
+        raise DataError(source, field, f"expected shape ({', '.join(want)}), got {value.shape}")
+
+
+@dataclass(frozen=True, eq=False)
+class GroundTruth:
+    """Ground-truth states resampled to the IMU time stamps.
+
+    Attributes:
+        rot: (N, 3, 3) world <- IMU rotation matrices.
+        pos: (N, 3) position of the IMU origin in the world frame, m.
+        vel: (N, 3) velocity of the IMU origin in the world frame, m/s.
+        valid: (N,) bool; False where the ground truth had a gap or does not cover the IMU sample.
+    """
+
+    rot: np.ndarray
+    pos: np.ndarray
+    vel: np.ndarray
+    valid: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class GpsFixes:
+    """GNSS position fixes (a measurement, not ground truth).
+
+    Attributes:
+        t: (M,) time of each fix, s, on the IMU clock.
+        pos: (M, 3) antenna position in the world frame, m.
+        sigma: (M, 3) one-sigma position noise per axis, m (standard deviation, not variance).
+    """
+
+    t: np.ndarray
+    pos: np.ndarray
+    sigma: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class ImuSequence:
+    """One IMU recording with optional ground truth and GPS. See the module docstring for conventions.
+
+    Attributes:
+        name: short name, e.g. ``"MH_01_easy"``.
+        t: (N,) sample times, s, strictly increasing.
+        gyro: (N, 3) rad/s, IMU frame.
+        acc: (N, 3) specific force, m/s^2, IMU frame.
+        gravity: (3,) gravity vector in the world frame, m/s^2.
+        gt: ground truth at the N IMU times, or None.
+        gps: GPS fixes, or None.
+        source: where the sequence came from (a path, or ``"simulator"``), used in error messages.
+    """
+
+    name: str
+    t: np.ndarray
+    gyro: np.ndarray
+    acc: np.ndarray
+    gravity: np.ndarray
+    gt: GroundTruth | None = None
+    gps: GpsFixes | None = None
+    source: str = ""
+
+    def __post_init__(self):
+        src = self.source or self.name
+        _check_array(src, "t", self.t, (), None)
+        n = self.t.shape[0]
+        _check_array(src, "gyro", self.gyro, (3,), n)
+        _check_array(src, "acc", self.acc, (3,), n)
+        _check_array(src, "gravity", self.gravity, (3,), 3)
+        for field in ("t", "gyro", "acc"):
+            bad = ~np.isfinite(getattr(self, field))
+            if bad.any():
+                row = int(np.argwhere(bad)[0][0])
+                raise DataError(src, field, f"non-finite value at sample {row}")
+        steps = np.diff(self.t)
+        if (steps <= 0).any():
+            row = int(np.argmax(steps <= 0)) + 1
+            raise DataError(src, "t", f"timestamps must be strictly increasing; sample {row} is not")
+        if self.gt is not None:
+            _check_array(src, "gt.rot", self.gt.rot, (3, 3), n)
+            _check_array(src, "gt.pos", self.gt.pos, (3,), n)
+            _check_array(src, "gt.vel", self.gt.vel, (3,), n)
+            _check_array(src, "gt.valid", self.gt.valid, (), n)
+        if self.gps is not None:
+            m = self.gps.t.shape[0]
+            _check_array(src, "gps.t", self.gps.t, (), None)
+            _check_array(src, "gps.pos", self.gps.pos, (3,), m)
+            _check_array(src, "gps.sigma", self.gps.sigma, (3,), m)
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    @property
+    def dt(self) -> np.ndarray:
+        """(N,) time step of each sample, s: ``t[k+1] - t[k]``, the last one repeating its predecessor."""
+        if len(self) < 2:
+            return np.zeros_like(self.t)
+        d = np.diff(self.t)
+        return np.concatenate([d, d[-1:]])

@@ -1,0 +1,202 @@
+"""The scan preintegrator against GTSAM, against the sample-by-sample loop, and under autograd."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pytest
+import torch
+
+from learned_imu import NavState, predict, preintegrate, so3
+from learned_imu.preintegration_loop import preintegrate_loop
+
+RATE_HZ = 200.0
+DT = 1.0 / RATE_HZ
+GYRO_DENSITY = 1e-4  # rad^2/s
+ACC_DENSITY = 1e-3  # m^2/s^3
+
+
+def imu_samples(n: int, max_rate: float, seed: int = 0, batch: tuple[int, ...] = ()):
+    """Random IMU samples: rates uniform in [-max_rate, max_rate] rad/s, specific force around +g."""
+    rng = np.random.default_rng(seed)
+    gyro = rng.uniform(-max_rate, max_rate, (*batch, n, 3))
+    acc = rng.normal(0.0, 2.0, (*batch, n, 3)) + np.array([0.0, 0.0, 9.81])
+    return gyro, acc
+
+
+def gtsam_loop(cls, gyro, acc, dt, gyro_density=GYRO_DENSITY, acc_density=ACC_DENSITY):
+    """Run a GTSAM preintegration class sample by sample; return its deltas and covariance after each sample."""
+    params = gtsam.PreintegrationParams.MakeSharedU(9.81)
+    params.setGyroscopeCovariance(np.eye(3) * gyro_density)
+    params.setAccelerometerCovariance(np.eye(3) * acc_density)
+    params.setIntegrationCovariance(np.zeros((3, 3)))
+    pim = cls(params, gtsam.imuBias.ConstantBias())
+    rot, pos, vel, cov = [], [], [], []
+    for k in range(len(gyro)):
+        pim.integrateMeasurement(acc[k], gyro[k], dt)
+        rot.append(pim.deltaRij().matrix())
+        pos.append(pim.deltaPij())
+        vel.append(pim.deltaVij())
+        cov.append(pim.preintMeasCov())
+    return np.array(rot), np.array(pos), np.array(vel), np.array(cov), pim
+
+
+def rel_err(ours: torch.Tensor | np.ndarray, ref: np.ndarray) -> float:
+    """Max-norm relative error: max |ours - ref| / max |ref|."""
+    ours = ours.detach().numpy() if isinstance(ours, torch.Tensor) else ours
+    return float(np.abs(ours - ref).max() / np.abs(ref).max())
+
+
+def to_manifold_chart(cov: torch.Tensor, rot: torch.Tensor) -> torch.Tensor:
+    """GTSAM tangent chart [theta, p, v] (start frame) -> NavState chart (body-frame errors)."""
+    t = torch.zeros(*cov.shape, dtype=cov.dtype)
+    t[..., :3, :3] = so3.right_jacobian(so3.log(rot))
+    t[..., 3:6, 3:6] = rot.mT
+    t[..., 6:, 6:] = rot.mT
+    return t @ cov @ t.mT
+
+
+def test_deltas_equal_gtsam_manifold_preintegration():
+    gyro, acc = imu_samples(1000, max_rate=3.0)
+    rot, pos, vel, _, _ = gtsam_loop(gtsam.PreintegratedImuMeasurementsManifold, gyro, acc, DT)
+    out = preintegrate(torch.tensor(gyro), torch.tensor(acc), DT)
+    assert rel_err(out.rot, rot) < 1e-9
+    assert rel_err(out.pos, pos) < 1e-9
+    assert rel_err(out.vel, vel) < 1e-9
+    assert out.dt[-1].item() == pytest.approx(1000 * DT, rel=1e-12)
+
+
+def test_covariance_equals_gtsam_manifold_in_its_chart():
+    gyro, acc = imu_samples(400, max_rate=3.0, seed=1)
+    _, _, _, cov, _ = gtsam_loop(gtsam.PreintegratedImuMeasurementsManifold, gyro, acc, DT)
+    out = preintegrate(torch.tensor(gyro), torch.tensor(acc), DT, GYRO_DENSITY, ACC_DENSITY)
+    assert rel_err(to_manifold_chart(out.cov, out.rot), cov) < 1e-9
+
+
+@pytest.mark.parametrize("max_rate", [0.3, 1.0])
+def test_covariance_matches_gtsam_default_tangent_preintegration(max_rate):
+    gyro, acc = imu_samples(1000, max_rate=max_rate, seed=2)
+    _, _, _, cov, _ = gtsam_loop(gtsam.PreintegratedImuMeasurements, gyro, acc, DT)
+    out = preintegrate(torch.tensor(gyro), torch.tensor(acc), DT, GYRO_DENSITY, ACC_DENSITY)
+    for k in (0, 9, 99, 499, 999):
+        assert rel_err(out.cov[k], cov[k]) < 0.01, k
+
+
+def test_covariance_equals_sample_loop_with_per_sample_noise():
+    gyro, acc = imu_samples(300, max_rate=3.0, seed=3, batch=(2,))
+    rng = np.random.default_rng(4)
+    gyro_cov = torch.tensor(rng.uniform(1e-6, 1e-3, gyro.shape))
+    acc_cov = torch.tensor(rng.uniform(1e-5, 1e-2, acc.shape))
+    dt = torch.tensor(rng.uniform(0.5 * DT, 1.5 * DT, gyro.shape[:-1]))
+    args = (torch.tensor(gyro), torch.tensor(acc), dt, gyro_cov, acc_cov)
+    scan, loop = preintegrate(*args), preintegrate_loop(*args)
+    for field in ("rot", "vel", "pos", "dt", "cov"):
+        assert rel_err(getattr(scan, field), getattr(loop, field).numpy()) < 1e-9, field
+
+
+def test_covariance_is_symmetric_positive_definite():
+    gyro, acc = imu_samples(1000, max_rate=2.0, seed=5)
+    out = preintegrate(torch.tensor(gyro), torch.tensor(acc), DT, GYRO_DENSITY, ACC_DENSITY)
+    assert rel_err(out.cov, out.cov.mT.numpy()) < 1e-12
+    assert torch.linalg.eigvalsh(out.cov[1:]).min() > 0
+
+
+def test_float32_tracks_float64():
+    gyro, acc = imu_samples(1000, max_rate=3.0, seed=6)
+    ref = preintegrate(torch.tensor(gyro), torch.tensor(acc), DT, GYRO_DENSITY, ACC_DENSITY)
+    f32 = preintegrate(torch.tensor(gyro).float(), torch.tensor(acc).float(), DT, GYRO_DENSITY, ACC_DENSITY)
+    assert f32.cov.dtype == torch.float32
+    for field in ("rot", "vel", "pos", "cov"):
+        assert rel_err(getattr(f32, field).double(), getattr(ref, field).numpy()) < 1e-4, field
+
+
+def test_gradcheck_deltas_and_covariance():
+    gyro, acc = imu_samples(7, max_rate=3.0, seed=7)
+    rng = np.random.default_rng(8)
+    inputs = (
+        torch.tensor(gyro, requires_grad=True),
+        torch.tensor(acc, requires_grad=True),
+        torch.tensor(rng.uniform(1e-4, 1e-3, (7, 3)), requires_grad=True),
+        torch.tensor(rng.uniform(1e-3, 1e-2, (7, 3)), requires_grad=True),
+    )
+
+    def fn(g, a, gc, ac):
+        out = preintegrate(g, a, 0.01, gc, ac)
+        return out.rot, out.vel, out.pos, out.cov
+
+    assert torch.autograd.gradcheck(fn, inputs, eps=1e-6, atol=1e-7, rtol=1e-5)
+
+
+def test_batch_equals_items_alone():
+    gyro, acc = imu_samples(37, max_rate=2.0, seed=9, batch=(3, 2))
+    g, a = torch.tensor(gyro), torch.tensor(acc)
+    full = preintegrate(g, a, DT, GYRO_DENSITY, ACC_DENSITY)
+    for i in range(3):
+        for j in range(2):
+            one = preintegrate(g[i, j], a[i, j], DT, GYRO_DENSITY, ACC_DENSITY)
+            assert torch.equal(full.pos[i, j], one.pos) or rel_err(full.pos[i, j], one.pos.numpy()) < 1e-14
+            assert rel_err(full.cov[i, j], one.cov.numpy()) < 1e-14
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 5, 127, 129])
+def test_short_and_non_power_of_two_lengths(n):
+    gyro, acc = imu_samples(n, max_rate=2.0, seed=n)
+    args = (torch.tensor(gyro), torch.tensor(acc), DT, GYRO_DENSITY, ACC_DENSITY)
+    scan, loop = preintegrate(*args), preintegrate_loop(*args)
+    assert scan.rot.shape == (n, 3, 3) and scan.cov.shape == (n, 9, 9)
+    assert rel_err(scan.pos, loop.pos.numpy()) < 1e-12
+    assert rel_err(scan.cov, loop.cov.numpy()) < 1e-12
+
+
+def test_predict_equals_gtsam_predict():
+    gyro, acc = imu_samples(200, max_rate=1.0, seed=10)
+    *_, pim = gtsam_loop(gtsam.PreintegratedImuMeasurementsManifold, gyro, acc, DT)
+    rot_i = gtsam.Rot3.RzRyRx(0.1, -0.2, 0.3)
+    state_i = gtsam.NavState(rot_i, np.array([1.0, 2.0, 3.0]), np.array([0.5, -0.4, 0.2]))
+    state_j = pim.predict(state_i, gtsam.imuBias.ConstantBias())
+    pre = preintegrate(torch.tensor(gyro), torch.tensor(acc), DT)
+    f64 = torch.float64
+    initial = NavState(
+        rot=torch.tensor(rot_i.matrix()),
+        vel=torch.tensor([0.5, -0.4, 0.2], dtype=f64),
+        pos=torch.tensor([1.0, 2.0, 3.0], dtype=f64),
+    )
+    ours = predict(initial, pre, gravity=[0.0, 0.0, -9.81])
+    assert rel_err(ours.rot[-1], state_j.attitude().matrix()) < 1e-9
+    assert rel_err(ours.pos[-1], state_j.position()) < 1e-9
+    assert rel_err(ours.vel[-1], state_j.velocity()) < 1e-9
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (lambda g, a, dt: (g[:, :2], a, dt), "shape"),
+        (lambda g, a, dt: (g, a[:-1], dt), "shape"),
+        (lambda g, a, dt: (g, a, -dt), "dt must be positive"),
+        (lambda g, a, dt: (g, a, 0.0), "dt must be positive"),
+        (lambda g, a, dt: (g, a, torch.full((3,), dt)), "dt must be"),
+        (lambda g, a, dt: (g.index_fill(0, torch.tensor([1]), float("nan")), a, dt), "gyro contains NaN"),
+        (lambda g, a, dt: (g, a.index_fill(0, torch.tensor([2]), float("inf")), dt), "acc contains NaN or Inf"),
+    ],
+)
+def test_bad_samples_raise_value_error(change, message):
+    gyro, acc = imu_samples(10, max_rate=1.0)
+    g, a, dt = change(torch.tensor(gyro), torch.tensor(acc), DT)
+    with pytest.raises(ValueError, match=message):
+        preintegrate(g, a, dt)
+
+
+@pytest.mark.parametrize(
+    ("gyro_cov", "acc_cov", "message"),
+    [
+        (-1e-4, 1e-3, "gyro_cov must be non-negative"),
+        (1e-4, torch.tensor([1e-3, -1.0, 1e-3]), "acc_cov must be non-negative"),
+        (torch.ones(4), 1e-3, "gyro_cov must be"),
+        (1e-4, None, "both"),
+        (float("nan"), 1e-3, "gyro_cov contains NaN"),
+    ],
+)
+def test_bad_covariances_raise_value_error(gyro_cov, acc_cov, message):
+    gyro, acc = imu_samples(10, max_rate=1.0)
+    with pytest.raises(ValueError, match=message):
+        preintegrate(torch.tensor(gyro), torch.tensor(acc), DT, gyro_cov, acc_cov)

@@ -29,6 +29,9 @@ import torch
 from learned_imu import so3
 from learned_imu.errors import InputError
 
+# Up to this many (batch x samples) products the rotation scan uses Hillis-Steele doubling (fewer launches).
+_SMALL_SCAN = 4096
+
 
 @dataclass(frozen=True, eq=False)
 class Preintegrated:
@@ -70,23 +73,29 @@ def preintegrate(gyro, acc, dt, gyro_cov=None, acc_cov=None) -> Preintegrated:
         ``Preintegrated`` after every sample; ``cov`` only if both densities are given.
     """
     gyro, acc, dt = _check_samples(gyro, acc, dt)
-    step = so3.exp(gyro * dt[..., None])
-    rot = _cumulative_product(step)  # dR after each sample
-    rot_before = torch.cat([_eye_like(rot[..., :1, :, :]), rot[..., :-1, :, :]], dim=-3)
-    force = (rot_before @ acc[..., None])[..., 0]  # dR_k a_k, start frame
-    vel = torch.cumsum(force * dt[..., None], dim=-2)
-    vel_before = vel - force * dt[..., None]
-    pos = torch.cumsum(vel_before * dt[..., None] + 0.5 * force * (dt * dt)[..., None], dim=-2)
-    elapsed = torch.cumsum(dt, dim=-1)
-
-    if gyro_cov is None and acc_cov is None:
-        return Preintegrated(rot=rot, vel=vel, pos=pos, dt=elapsed)
-    if gyro_cov is None or acc_cov is None:
+    if (gyro_cov is None) != (acc_cov is None):
         raise InputError("preintegrate: give both gyro_cov and acc_cov, or neither")
-    gyro_cov = _check_density("gyro_cov", gyro_cov, gyro)
-    acc_cov = _check_density("acc_cov", acc_cov, acc)
-    cov = _propagate_covariance(gyro, dt, rot, rot_before, force, gyro_cov, acc_cov)
-    return Preintegrated(rot=rot, vel=vel, pos=pos, dt=elapsed, cov=cov)
+    with_cov = gyro_cov is not None
+    if with_cov:
+        gyro_cov = _samples_last(_check_density("gyro_cov", gyro_cov, gyro))
+        acc_cov = _samples_last(_check_density("acc_cov", acc_cov, acc))
+    # Internally samples are last: vectors (..., 3, N), matrices (..., 3, 3, N); see so3's docstring.
+    w, a, h = _samples_last(gyro), _samples_last(acc), dt[..., None, :]
+    step = so3.exp(w * h, dim=-2)
+    rot = _cumulative_product(step)  # dR after each sample
+    rot_before = torch.cat([_eye_like(rot[..., :1]), rot[..., :-1]], dim=-1)
+    force = so3.matvec(rot_before, a, dim=-2)  # dR_k a_k, start frame
+    vel = torch.cumsum(force * h, dim=-1)
+    vel_before = vel - force * h
+    pos = torch.cumsum(vel_before * h + 0.5 * force * h * h, dim=-1)
+    cov = _propagate_covariance(w, h, rot, rot_before, force, gyro_cov, acc_cov) if with_cov else None
+    return Preintegrated(
+        rot=_samples_first(rot, 2),
+        vel=_samples_first(vel, 1),
+        pos=_samples_first(pos, 1),
+        dt=torch.cumsum(dt, dim=-1),
+        cov=None if cov is None else _samples_first(cov, 2),
+    )
 
 
 def predict(initial: NavState, pre: Preintegrated, gravity) -> NavState:
@@ -107,58 +116,116 @@ def predict(initial: NavState, pre: Preintegrated, gravity) -> NavState:
     return NavState(rot=rot, vel=vel, pos=pos)
 
 
+def _samples_last(x: torch.Tensor) -> torch.Tensor:
+    """(..., N, 3) -> contiguous (..., 3, N); a (3,) diagonal -> (3, 1), which broadcasts."""
+    return x[:, None] if x.ndim == 1 else x.mT.contiguous()
+
+
+def _samples_first(x: torch.Tensor, item_ndim: int) -> torch.Tensor:
+    """Samples-last (..., *item, N) -> contiguous (..., N, *item)."""
+    if torch.is_grad_enabled() and x.requires_grad:
+        return _SamplesFirst.apply(x, item_ndim)
+    return x.movedim(-1, -1 - item_ndim).contiguous()
+
+
+class _SamplesFirst(torch.autograd.Function):
+    """Samples-last (..., *shape, N) -> contiguous (..., N, *shape), and gradients back to contiguous
+    samples-last, so that the backward pass through the scan runs on contiguous rows (a strided gradient would
+    slow every op after it)."""
+
+    @staticmethod
+    def forward(ctx, x, item_ndim):
+        ctx.axis = -1 - item_ndim
+        return x.movedim(-1, ctx.axis).contiguous()
+
+    @staticmethod
+    def backward(ctx, grad):
+        return grad.movedim(ctx.axis, -1).contiguous(), None
+
+
 def _cumulative_product(mats: torch.Tensor) -> torch.Tensor:
-    """Inclusive prefix product ``M_0 M_1 ... M_k`` along dim -3, by Hillis-Steele doubling (log2 N rounds)."""
-    n = mats.shape[-3]
-    shift = 1
-    while shift < n:
-        mats = torch.cat([mats[..., :shift, :, :], mats[..., :-shift, :, :] @ mats[..., shift:, :, :]], dim=-3)
-        shift *= 2
-    return mats
+    """Inclusive prefix product ``M_0 M_1 ... M_k`` of (..., 3, 3, N) along the last axis, in O(log N) rounds.
+
+    Small problems use Hillis-Steele doubling (N log N products in log2 N rounds: fewest kernel launches);
+    large ones a work-efficient odd-even scan (2N products in 2 log2 N rounds: least memory traffic).
+    """
+    if mats[..., 0, 0, :].numel() <= _SMALL_SCAN:
+        n, shift = mats.shape[-1], 1
+        while shift < n:
+            head, tail = mats[..., :shift], so3.matmul(mats[..., :-shift], mats[..., shift:], dim=-2)
+            mats = torch.cat([head, tail], dim=-1)
+            shift *= 2
+        return mats
+    return _odd_even_scan(mats)
 
 
-def _propagate_covariance(gyro, dt, rot, rot_before, force, gyro_cov, acc_cov) -> torch.Tensor:
-    """Covariance after each sample, GTSAM tangent chart, [rotation, position, velocity]; see module docstring."""
-    tt = dt[..., None, None]
+def _odd_even_scan(mats: torch.Tensor) -> torch.Tensor:
+    """Multiply neighbours pairwise, scan the N/2 pair products recursively, then fill in even positions."""
+    n = mats.shape[-1]
+    if n == 1:
+        return mats
+    half = n // 2
+    pairs = so3.matmul(mats[..., 0 : 2 * half : 2], mats[..., 1 : 2 * half : 2], dim=-2)
+    odd = _odd_even_scan(pairs)  # products up to samples 1, 3, 5, ...
+    even = so3.matmul(odd[..., : (n - 1) // 2], mats[..., 2::2], dim=-2)  # up to samples 2, 4, ...
+    even = torch.cat([mats[..., :1], even], dim=-1)
+    out = torch.stack([even[..., :half], odd], dim=-1).flatten(-2)
+    return torch.cat([out, even[..., half:]], dim=-1) if n % 2 else out
+
+
+def _propagate_covariance(w, h, rot, rot_before, force, gyro_cov, acc_cov) -> torch.Tensor:
+    """Covariance (..., 9, 9, N) after each sample in GTSAM's tangent chart; see the module docstring.
+
+    Samples-last layout throughout; ``h`` is dt shaped (..., 1, N).
+    """
+
+    def mm(x, y, transpose_y=False):
+        return so3.matmul(x, y, dim=-2, transpose_b=transpose_y)
+
+    def tr(x):
+        return x.transpose(-3, -2)
+
+    hh = h[..., None, :, :]  # dt for matrices, (..., 1, 1, N)
     # Per-sample noise injected into the start-frame error state [phi, v, p].
-    lever = rot @ so3.right_jacobian(gyro * dt[..., None])  # d phi_{k+1} / d(gyro noise) / dt
-    g_phi = (lever * (gyro_cov * dt[..., None])[..., None, :]) @ lever.mT  # Cov of phi increment
-    q_acc = (rot_before * (acc_cov * dt[..., None])[..., None, :]) @ rot_before.mT  # Cov of v increment
-    m = -so3.hat(force) * tt  # d v_{k+1} / d phi_k
+    lever = mm(rot, so3.right_jacobian(w * h, dim=-2))  # d phi_{k+1} / d(gyro noise dt)
+    g_phi = mm(lever * (gyro_cov * h)[..., None, :, :], lever, True)  # Cov of the phi increment
+    q_acc = mm(rot_before * (acc_cov * h)[..., None, :, :], rot_before, True)  # Cov of the v increment
+    m = -so3.hat(force, dim=-2) * hh  # d v_{k+1} / d phi_k
 
-    # Each line: Sigma block before sample k (exclusive cumsum), from blocks already known before k.
+    # Each line: a block of Sigma before sample k (exclusive cumsum), from blocks already known before k.
     p_inc, p_ex = _cumsums(g_phi)  # Sigma_phi,phi
-    mp = m @ p_ex
+    mp = mm(m, p_ex)
     x_inc, x_ex = _cumsums(mp)  # Sigma_v,phi
-    xm = x_ex @ m.mT
-    mpm = mp @ m.mT
-    v_inc, v_ex = _cumsums(xm + xm.mT + mpm + q_acc)  # Sigma_v,v
-    y_inc, y_ex = _cumsums(tt * x_ex + 0.5 * tt * mp)  # Sigma_p,phi
-    half_xm = 0.5 * (xm + xm.mT)
-    z_inc, z_ex = _cumsums(y_ex @ m.mT + tt * (v_ex + xm + 0.5 * xm.mT + 0.5 * mpm + 0.5 * q_acc))  # Sigma_p,v
-    ym = y_ex @ m.mT
-    w_term = tt * (z_ex + z_ex.mT) + 0.5 * tt * (ym + ym.mT) + tt * tt * (v_ex + half_xm + 0.25 * mpm + 0.25 * q_acc)
-    w_inc, _ = _cumsums(w_term)  # Sigma_p,p
+    xm, mpm = mm(x_ex, m, True), mm(mp, m, True)
+    xm_sym = xm + tr(xm)
+    v_inc, v_ex = _cumsums(xm_sym + mpm + q_acc)  # Sigma_v,v
+    y_inc, y_ex = _cumsums(hh * (x_ex + 0.5 * mp))  # Sigma_p,phi
+    ym = mm(y_ex, m, True)
+    z_inc, z_ex = _cumsums(ym + hh * (v_ex + xm + 0.5 * (tr(xm) + mpm + q_acc)))  # Sigma_p,v
+    w_term = hh * (z_ex + tr(z_ex) + 0.5 * (ym + tr(ym))) + hh * hh * (v_ex + 0.5 * xm_sym + 0.25 * (mpm + q_acc))
+    w_inc = torch.cumsum(w_term, dim=-1)  # Sigma_p,p
 
     # Map the rotation error from the start frame to GTSAM's tangent chart at theta_k = Log(dR_k).
-    to_tangent = so3.right_jacobian_inv(so3.log(rot)) @ rot.mT
-    rr = to_tangent @ p_inc @ to_tangent.mT
-    rp = to_tangent @ y_inc.mT
-    rv = to_tangent @ x_inc.mT
-    top = torch.cat([rr, rp, rv], dim=-1)
-    mid = torch.cat([rp.mT, w_inc, z_inc], dim=-1)
-    bottom = torch.cat([rv.mT, z_inc.mT, v_inc], dim=-1)
-    return torch.cat([top, mid, bottom], dim=-2)
+    to_tangent = mm(so3.right_jacobian_inv(so3.log(rot, dim=-2), dim=-2), rot, True)
+    rp, rv = mm(to_tangent, y_inc, True), mm(to_tangent, x_inc, True)
+    blocks = (
+        (mm(mm(to_tangent, p_inc), to_tangent, True), rp, rv),
+        (tr(rp), w_inc, z_inc),
+        (tr(rv), tr(z_inc), v_inc),
+    )
+    # cat, not slice assignment: the backward of a slice assignment copies the whole 9x9xN gradient per block
+    return torch.cat([torch.cat(row, dim=-2) for row in blocks], dim=-3)
 
 
 def _cumsums(terms: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Inclusive and exclusive cumulative sums over samples (dim -3) of per-sample 3x3 terms."""
-    inclusive = torch.cumsum(terms, dim=-3)
+    """Inclusive and exclusive cumulative sums over samples (last axis) of per-sample terms."""
+    inclusive = torch.cumsum(terms, dim=-1)
     return inclusive, inclusive - terms
 
 
 def _eye_like(ref: torch.Tensor) -> torch.Tensor:
-    return torch.eye(3, dtype=ref.dtype, device=ref.device).expand(ref.shape)
+    """Identity matrices shaped like ``ref`` (..., 3, 3, n)."""
+    return torch.eye(3, dtype=ref.dtype, device=ref.device)[..., None].expand(ref.shape)
 
 
 def _check_samples(gyro, acc, dt):

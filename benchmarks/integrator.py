@@ -4,6 +4,8 @@
 
 Every peer integrates the same random float32 IMU samples (200 Hz, rates up to 3 rad/s) with covariance
 propagation. Reported: the median wall time of several repeats, and ratios (peer time / our time).
+"ours" is ``learned_imu.preintegrate`` (covariance by cumulative sums, O(N) work); "ours_pair_scan" is the
+other O(log N)-deep route, a scan over (A, Q) pairs with O(N log N) 9x9 products (``preintegration_reference``).
 - batch 1, N = 1000, forward: ours, pypose ``IMUPreintegrator(prop_cov=True)``, GTSAM
   ``PreintegratedImuMeasurements.integrateMeasurement`` called from Python per sample (float64, C++), and the
   sample-by-sample torch loop (``preintegrate_loop``, the paper's "iterative" integrator).
@@ -24,7 +26,7 @@ import pypose as pp
 import torch
 
 from learned_imu import preintegrate
-from learned_imu.preintegration_loop import preintegrate_loop
+from learned_imu.preintegration_reference import preintegrate_loop, preintegrate_pair_scan
 
 DT = 0.005  # s, 200 Hz
 GYRO_DENSITY = 1.6968e-4**2  # rad^2/s (EuRoC ADIS16448 datasheet density, squared)
@@ -49,22 +51,13 @@ def median_time(fn, repeats: int, warmup: int = 2) -> float:
     return statistics.median(times)
 
 
-def ours(gyro, acc, backward: bool):
+def torch_function(fn, gyro, acc, backward: bool):
+    """Time one of our torch routes: ``preintegrate`` (cumsum route), the pair scan, or the sample loop."""
+
     def run():
         g = gyro.clone().requires_grad_(backward)
         a = acc.clone().requires_grad_(backward)
-        out = preintegrate(g, a, DT, GYRO_DENSITY, ACC_DENSITY)
-        if backward:
-            (out.pos.sum() + out.rot.sum() + out.vel.sum() + out.cov[..., -1, :, :].sum()).backward()
-
-    return run
-
-
-def torch_loop(gyro, acc, backward: bool):
-    def run():
-        g = gyro.clone().requires_grad_(backward)
-        a = acc.clone().requires_grad_(backward)
-        out = preintegrate_loop(g, a, DT, GYRO_DENSITY, ACC_DENSITY)
+        out = fn(g, a, DT, GYRO_DENSITY, ACC_DENSITY)
         if backward:
             (out.pos.sum() + out.rot.sum() + out.vel.sum() + out.cov[..., -1, :, :].sum()).backward()
 
@@ -121,16 +114,18 @@ def main() -> None:
     results = {}
     gyro1, acc1 = make_samples(1, args.n)
     single = {
-        "ours": ours(gyro1, acc1, backward=False),
+        "ours": torch_function(preintegrate, gyro1, acc1, backward=False),
+        "ours_pair_scan": torch_function(preintegrate_pair_scan, gyro1, acc1, backward=False),
         "pypose": pypose_integrator(gyro1, acc1, backward=False),
         "gtsam_cpp_loop": gtsam_loop(gyro1, acc1),
-        "torch_loop": torch_loop(gyro1, acc1, backward=False),
+        "torch_loop": torch_function(preintegrate_loop, gyro1, acc1, backward=False),
     }
     gyro64, acc64 = make_samples(64, args.n)
     batched = {
-        "ours": ours(gyro64, acc64, backward=True),
+        "ours": torch_function(preintegrate, gyro64, acc64, backward=True),
+        "ours_pair_scan": torch_function(preintegrate_pair_scan, gyro64, acc64, backward=True),
         "pypose": pypose_integrator(gyro64, acc64, backward=True),
-        "torch_loop": torch_loop(gyro64, acc64, backward=True),
+        "torch_loop": torch_function(preintegrate_loop, gyro64, acc64, backward=True),
     }
     for case, peers in (("batch1_forward", single), ("batch64_forward_backward", batched)):
         times = {}

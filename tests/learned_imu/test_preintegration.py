@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from learned_imu import NavState, predict, preintegrate, so3
-from learned_imu.preintegration_loop import preintegrate_loop
+from learned_imu.preintegration_reference import preintegrate_loop, preintegrate_pair_scan
 
 RATE_HZ = 200.0
 DT = 1.0 / RATE_HZ
@@ -92,6 +92,15 @@ def test_covariance_equals_sample_loop_with_per_sample_noise():
     scan, loop = preintegrate(*args), preintegrate_loop(*args)
     for field in ("rot", "vel", "pos", "dt", "cov"):
         assert rel_err(getattr(scan, field), getattr(loop, field).numpy()) < 1e-9, field
+
+
+def test_pair_scan_route_equals_sample_loop():
+    gyro, acc = imu_samples(257, max_rate=3.0, seed=11, batch=(2,))
+    rng = np.random.default_rng(12)
+    gyro_cov = torch.tensor(rng.uniform(1e-6, 1e-3, gyro.shape))
+    acc_cov = torch.tensor(rng.uniform(1e-5, 1e-2, acc.shape))
+    args = (torch.tensor(gyro), torch.tensor(acc), DT, gyro_cov, acc_cov)
+    assert rel_err(preintegrate_pair_scan(*args).cov, preintegrate_loop(*args).cov.numpy()) < 1e-9
 
 
 def test_covariance_is_symmetric_positive_definite():

@@ -1,9 +1,11 @@
-"""Sample-by-sample preintegration: the "iterative" integrator of the AirIMU paper.
+"""Two other routes to ``learned_imu.preintegrate``'s result, kept as references for tests and benchmarks.
 
-It evaluates the same discrete model as ``learned_imu.preintegrate`` with a Python loop over samples and the
-textbook 9x9 recursion ``Sigma <- A Sigma A^T + B_g (Q_g / dt) B_g^T + B_a (Q_a / dt) B_a^T`` in the body-frame
-error state (as GTSAM's ``NavState::update`` linearises it), mapped to the tangent chart at every step. It is
-O(N) deep: use it as a reference in tests and a baseline in benchmarks, not in training.
+- ``preintegrate_loop``: the "iterative" integrator of the AirIMU paper. A Python loop over samples with the
+  textbook 9x9 recursion ``Sigma <- A Sigma A^T + B_g (Q_g / dt) B_g^T + B_a (Q_a / dt) B_a^T`` in the body-frame
+  error state (as GTSAM's ``NavState::update`` linearises it), mapped to the tangent chart at every step. O(N) deep.
+- ``preintegrate_pair_scan``: the covariance by an associative scan over the pairs (A_k, Q_k) of the start-frame
+  recursion, ``(A2, Q2) o (A1, Q1) = (A2 A1, A2 Q1 A2^T + Q2)``, Hillis-Steele style: O(log N) deep but
+  O(N log N) 9x9 products. ``preintegrate`` instead unrolls the same recursion into cumulative sums (O(N) work).
 """
 
 from __future__ import annotations
@@ -11,7 +13,7 @@ from __future__ import annotations
 import torch
 
 from learned_imu import so3
-from learned_imu.preintegration import Preintegrated, _check_density, _check_samples
+from learned_imu.preintegration import Preintegrated, _check_density, _check_samples, preintegrate
 
 
 def preintegrate_loop(gyro, acc, dt, gyro_cov=None, acc_cov=None) -> Preintegrated:
@@ -89,3 +91,50 @@ def _to_tangent_chart(sigma, rot):
         dim=-2,
     )
     return t @ sigma @ t.mT
+
+
+def preintegrate_pair_scan(gyro, acc, dt, gyro_cov, acc_cov) -> Preintegrated:
+    """Same arguments and result as ``learned_imu.preintegrate`` (covariance required), by a scan over pairs."""
+    pre = preintegrate(gyro, acc, dt)
+    gyro, acc, dt = _check_samples(gyro, acc, dt)
+    gyro_cov = _check_density("gyro_cov", gyro_cov, gyro).expand(gyro.shape)
+    acc_cov = _check_density("acc_cov", acc_cov, acc).expand(acc.shape)
+    rot = pre.rot
+    eye = torch.eye(3, dtype=rot.dtype, device=rot.device).expand(*rot.shape[:-3], 1, 3, 3)
+    rot_before = torch.cat([eye, rot[..., :-1, :, :]], dim=-3)
+    h = dt[..., None, None]
+    zero = torch.zeros_like(rot)
+    eye_n = eye.expand(rot.shape)
+    # Start-frame error state [phi, v, p]: phi' = phi + n_g; v' = v + M phi + n_v; p' = p + dt v + dt/2 M phi + n_p
+    m = -so3.hat((rot_before @ acc[..., None])[..., 0]) * h
+    big_a = torch.cat(
+        [
+            torch.cat([eye_n, zero, zero], dim=-1),
+            torch.cat([m, eye_n, zero], dim=-1),
+            torch.cat([0.5 * h * m, h * eye_n, eye_n], dim=-1),
+        ],
+        dim=-2,
+    )
+    lever = rot @ so3.right_jacobian(gyro * dt[..., None]) * h  # d phi' / d(gyro noise)
+    b_g = torch.cat([lever, zero, zero], dim=-2)
+    b_a = torch.cat([zero, rot_before * h, 0.5 * rot_before * h * h], dim=-2)
+    q_g, q_a = (gyro_cov / dt[..., None])[..., None, :], (acc_cov / dt[..., None])[..., None, :]  # discrete
+    q = (b_g * q_g) @ b_g.mT + (b_a * q_a) @ b_a.mT
+    shift, n = 1, rot.shape[-3]
+    while shift < n:  # inclusive scan: pair k <- pair k o pair (k - shift)
+        a_prev, q_prev = big_a[..., :-shift, :, :], q[..., :-shift, :, :]
+        a_cur, q_cur = big_a[..., shift:, :, :], q[..., shift:, :, :]
+        big_a = torch.cat([big_a[..., :shift, :, :], a_cur @ a_prev], dim=-3)
+        q = torch.cat([q[..., :shift, :, :], a_cur @ q_prev @ a_cur.mT + q_cur], dim=-3)
+        shift *= 2
+    # Start frame [phi, v, p] -> GTSAM tangent chart [theta, p, v].
+    to_theta = so3.right_jacobian_inv(so3.log(rot)) @ rot.mT
+    t = torch.cat(
+        [
+            torch.cat([to_theta, zero, zero], dim=-1),
+            torch.cat([zero, zero, eye_n], dim=-1),
+            torch.cat([zero, eye_n, zero], dim=-1),
+        ],
+        dim=-2,
+    )
+    return Preintegrated(rot=pre.rot, vel=pre.vel, pos=pre.pos, dt=pre.dt, cov=t @ q @ t.mT)

@@ -88,7 +88,7 @@ class ImuSequence:
         n = self.t.shape[0]
         _check_array(src, "gyro", self.gyro, (3,), n)
         _check_array(src, "acc", self.acc, (3,), n)
-        _check_array(src, "gravity", self.gravity, (3,), 3)
+        _check_array(src, "gravity", self.gravity, (), 3)
         for field in ("t", "gyro", "acc"):
             bad = ~np.isfinite(getattr(self, field))
             if bad.any():

@@ -1,0 +1,256 @@
+"""Checks every reader runs: time stamps, gaps, units, and the frame self-check of ground truth against the IMU.
+
+The frame self-check uses two facts that hold for any correctly read sequence:
+
+- averaged over a sequence, the world acceleration is small (|v_end - v_start| / duration), so the mean of
+  ``R_gt @ acc`` (specific force in the world frame) is close to ``-gravity``, i.e. +|g| along world z;
+- the gyro integrated over a short interval equals the rotation between the ground-truth orientations at its
+  ends, ``Log(R_i^T R_j) ~= integral of gyro`` (body frame), up to a constant gyro bias (fitted and removed).
+
+When the data as read fail, the usual mistakes are tried (quaternion order, inverted rotation, acc in g, gyro
+in deg/s, each also the other way round) and the DataError names the one that makes both facts hold.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from learned_imu.datasets._rotations import matrix_to_quat_wxyz, quat_to_matrix, relative_rotvec
+from learned_imu.errors import DataError
+
+logger = logging.getLogger(__name__)
+
+STANDARD_GRAVITY = 9.80665  # m/s^2, the "g" of accelerometers that report in g
+DEG = np.pi / 180.0
+# a time step longer than this many median steps is a gap (IMU and ground truth alike)
+MAX_GAP_STEPS = 5.0
+ON_DUPLICATE = ("error", "drop")
+ON_GAP = ("error", "split", "keep")
+
+# units check without ground truth (median |acc| is robust to the large accelerations of hand-held trials)
+ACC_IN_G = (0.5, 2.0)  # median |acc| in this range: the file is in g
+ACC_PLAUSIBLE_MS2 = (4.0, 25.0)  # median |acc| outside this range: not specific force on Earth in m/s^2
+GYRO_MEDIAN_MAX = 10.0  # rad/s; a median rate above this is not a hand-held, vehicle or drone motion
+GYRO_MAX = 40.0  # rad/s; above the 2000 deg/s (34.9 rad/s) full scale of common MEMS gyros
+
+# frame self-check thresholds
+FRAME_MIN_SAMPLES = 200  # fewer valid ground-truth samples: the check is skipped
+ACC_TOL = 0.06  # |mean(R acc) + g| / |g|; 0.06 * 9.81 = 0.59 m/s^2 of mean acceleration + bias
+GYRO_TOL = 0.35  # rms(Log(R_i^T R_j)/dt - mean gyro - bias) / rms(Log(R_i^T R_j)/dt)
+GYRO_INTERVAL_S = 0.05  # length of the intervals the gyro is integrated over, s
+GYRO_MIN_RATE = 0.05  # rad/s rms; below this the ground truth barely rotates and the gyro test is skipped
+
+
+def check_timestamps(
+    t: np.ndarray,
+    source: object,
+    field: str = "t",
+    *,
+    on_duplicate: str = "error",
+    line_of: Callable[[int], int] | None = None,
+) -> np.ndarray:
+    """Indices of the samples to keep; raises on time going backwards and, by default, on duplicates.
+
+    Args:
+        t: (N,) time stamps, s, finite.
+        source, field: named in errors.
+        on_duplicate: ``"error"`` (default) or ``"drop"`` (keep the first sample of each repeated stamp).
+        line_of: maps a row to its file line number, for the error message.
+    """
+    if on_duplicate not in ON_DUPLICATE:
+        raise ValueError(f"on_duplicate must be one of {ON_DUPLICATE}, got {on_duplicate!r}")
+    line = line_of or (lambda row: None)
+    steps = np.diff(t)
+    if (steps < 0).any():
+        row = int(np.argmax(steps < 0)) + 1
+        raise DataError(
+            source,
+            field,
+            f"time goes backwards: {float(t[row])!r} after {float(t[row - 1])!r} (row {row})",
+            line=line(row),
+        )
+    dup = steps == 0
+    if dup.any():
+        row = int(np.argmax(dup)) + 1
+        if on_duplicate == "error":
+            raise DataError(
+                source,
+                field,
+                f"duplicated time stamp {float(t[row])!r} ({int(dup.sum())} in the file, "
+                f"first at row {row}); pass on_duplicate='drop' to keep the first of each",
+                line=line(row),
+            )
+        logger.warning("%s: dropping %d samples with duplicated time stamps", source, int(dup.sum()))
+    return np.flatnonzero(np.concatenate([[True], ~dup]))
+
+
+def gap_indices(t: np.ndarray, max_gap_steps: float = MAX_GAP_STEPS) -> np.ndarray:
+    """Indices ``i`` where ``t[i+1] - t[i]`` exceeds ``max_gap_steps`` median time steps."""
+    if t.shape[0] < 3:
+        return np.zeros(0, dtype=np.int64)
+    steps = np.diff(t)
+    return np.flatnonzero(steps > max_gap_steps * np.median(steps))
+
+
+def segments(t: np.ndarray, max_gap_steps: float = MAX_GAP_STEPS) -> list[slice]:
+    """Contiguous runs of ``t`` between gaps, as slices."""
+    cuts = gap_indices(t, max_gap_steps) + 1
+    bounds = np.concatenate([[0], cuts, [t.shape[0]]])
+    return [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+
+
+def check_units(acc: np.ndarray, gyro: np.ndarray, source: object) -> None:
+    """Raise a DataError when acc does not look like m/s^2 or gyro does not look like rad/s (no GT needed)."""
+    acc_norm = float(np.median(np.linalg.norm(acc, axis=1)))
+    if ACC_IN_G[0] < acc_norm < ACC_IN_G[1]:
+        raise DataError(
+            source,
+            "acc",
+            f"acc looks like it is in g, not m/s^2: median |acc| = {acc_norm:.3f} "
+            "(expected about 9.81 m/s^2); convert it (e.g. acc_unit='g')",
+        )
+    if not ACC_PLAUSIBLE_MS2[0] < acc_norm < ACC_PLAUSIBLE_MS2[1]:
+        raise DataError(
+            source,
+            "acc",
+            f"median |acc| = {acc_norm:.3g}, expected about 9.81 m/s^2 "
+            "(specific force at rest); wrong columns or unit?",
+        )
+    rate = np.linalg.norm(gyro, axis=1)
+    median, peak = float(np.median(rate)), float(rate.max())
+    if median > GYRO_MEDIAN_MAX or peak > GYRO_MAX:
+        raise DataError(
+            source,
+            "gyro",
+            f"gyro looks like it is in deg/s, not rad/s: median |gyro| = "
+            f"{median:.3g}, max {peak:.3g} (implausible in rad/s); convert it (e.g. gyro_unit='deg/s')",
+        )
+
+
+@dataclass(frozen=True)
+class _Convention:
+    """One way the data may have been misread: a field, what is wrong, and how to undo it."""
+
+    field: str
+    hint: str
+    fix_rot: Callable[[np.ndarray], np.ndarray] = lambda rot: rot
+    acc_scale: float = 1.0
+    gyro_scale: float = 1.0
+
+
+def _requat(rot: np.ndarray, shift: int) -> np.ndarray:
+    q = np.roll(matrix_to_quat_wxyz(rot), shift, axis=1)
+    return quat_to_matrix(q / np.linalg.norm(q, axis=1, keepdims=True), "wxyz")
+
+
+ALTERNATIVES = (
+    _Convention(
+        "gt.rot",
+        "quaternion order: the file is scalar-last (x, y, z, w) but was read as (w, x, y, z)",
+        fix_rot=lambda rot: _requat(rot, 1),
+    ),
+    _Convention(
+        "gt.rot",
+        "quaternion order: the file is scalar-first (w, x, y, z) but was read as (x, y, z, w)",
+        fix_rot=lambda rot: _requat(rot, -1),
+    ),
+    _Convention(
+        "gt.rot",
+        "rotation inverted: the file gives IMU <- world, not world <- IMU (transpose it)",
+        fix_rot=lambda rot: np.swapaxes(rot, -1, -2),
+    ),
+    _Convention("acc", "acc is in g, not m/s^2 (multiply by 9.80665)", acc_scale=STANDARD_GRAVITY),
+    _Convention("acc", "acc is already in m/s^2 but was converted from g", acc_scale=1.0 / STANDARD_GRAVITY),
+    _Convention("gyro", "gyro is in deg/s, not rad/s (multiply by pi/180)", gyro_scale=DEG),
+    _Convention("gyro", "gyro is already in rad/s but was converted from deg/s", gyro_scale=1.0 / DEG),
+)
+
+
+@dataclass(frozen=True)
+class FrameScore:
+    """Residuals of the two self-check facts; the data pass when both are below their tolerance.
+
+    Attributes:
+        acc: |mean(R @ acc) + gravity| / |gravity|.
+        gyro: relative rms mismatch of gyro and ground-truth rotation rate (0 when GT barely rotates).
+        mean_world_acc: (3,) mean of R @ acc, m/s^2.
+    """
+
+    acc: float
+    gyro: float
+    mean_world_acc: np.ndarray
+
+    @property
+    def ok(self) -> bool:
+        return self.acc < ACC_TOL and self.gyro < GYRO_TOL
+
+
+def frame_score(t, gyro, acc, rot, valid, gravity) -> FrameScore:
+    """Score one reading of the data (see the module docstring)."""
+    world_acc = np.einsum("nij,nj->ni", rot[valid], acc[valid]).mean(axis=0)
+    acc_res = float(np.linalg.norm(world_acc + gravity) / np.linalg.norm(gravity))
+    dt = np.diff(t, append=t[-1])
+    step = max(1, int(round(GYRO_INTERVAL_S / np.median(np.diff(t)))))
+    i = np.arange(0, t.shape[0] - step, step)
+    j = i + step
+    span = t[j] - t[i]
+    keep = valid[i] & valid[j] & (span < 1.5 * step * np.median(np.diff(t)))
+    i, j, span = i[keep], j[keep], span[keep]
+    gyro_res = 0.0
+    if i.shape[0] >= 10:
+        integral = np.concatenate([np.zeros((1, 3)), np.cumsum(gyro * dt[:, None], axis=0)])
+        rate_imu = (integral[j] - integral[i]) / span[:, None]
+        rate_gt = relative_rotvec(rot[i], rot[j]) / span[:, None]
+        scale = float(np.sqrt((rate_gt**2).sum(axis=1).mean()))
+        if scale > GYRO_MIN_RATE:
+            diff = rate_gt - rate_imu
+            diff -= diff.mean(axis=0)  # a constant gyro bias is not a convention error
+            gyro_res = float(np.sqrt((diff**2).sum(axis=1).mean())) / scale
+    return FrameScore(acc_res, gyro_res, world_acc)
+
+
+def check_frame(t, gyro, acc, rot, valid, gravity, source: object, gt_source: object = None) -> FrameScore | None:
+    """Frame self-check of ground truth against the IMU; raises a DataError naming the misread convention.
+
+    Args:
+        t (N,) s, gyro (N, 3) rad/s, acc (N, 3) m/s^2, rot (N, 3, 3) world <- IMU, valid (N,) bool,
+        gravity (3,) m/s^2 world frame; source: the IMU file, gt_source: the ground-truth file (if different).
+    Returns:
+        The score of the data as read, or None when there is too little valid ground truth to judge.
+    """
+    gt_source = source if gt_source is None else gt_source
+    if int(valid.sum()) < FRAME_MIN_SAMPLES:
+        logger.info("%s: frame self-check skipped (%d valid ground-truth samples)", source, int(valid.sum()))
+        return None
+    score = frame_score(t, gyro, acc, rot, valid, gravity)
+    if score.ok:
+        return score
+    found = (
+        f"mean of R_gt @ acc = {np.round(score.mean_world_acc, 3).tolist()} m/s^2, expected about "
+        f"{np.round(-gravity, 3).tolist()} (= -gravity; relative residual {score.acc:.3f}, tolerance "
+        f"{ACC_TOL}); gyro vs ground-truth rotation rate residual {score.gyro:.3f} (tolerance {GYRO_TOL})"
+    )
+    fits = []
+    for alt in ALTERNATIVES:
+        alt_score = frame_score(t, alt.gyro_scale * gyro, alt.acc_scale * acc, alt.fix_rot(rot), valid, gravity)
+        if alt_score.ok:
+            fits.append((alt_score.acc / ACC_TOL + alt_score.gyro / GYRO_TOL, alt, alt_score))
+    if not fits:
+        raise DataError(
+            gt_source,
+            "gt.rot",
+            f"frame self-check failed: {found}; none of the usual mistakes "
+            "(quaternion order, inverted rotation, acc in g, gyro in deg/s) explains it",
+        )
+    _, alt, alt_score = min(fits, key=lambda fit: fit[0])
+    where = gt_source if alt.field == "gt.rot" else source
+    raise DataError(
+        where,
+        alt.field,
+        f"frame self-check failed: {found}. It passes if {alt.hint} "
+        f"(residuals then {alt_score.acc:.3f} and {alt_score.gyro:.3f})",
+    )

@@ -1,0 +1,113 @@
+"""BROAD (Berlin Robust Orientation Estimation Assessment Dataset) trials, MATLAB ``.mat`` files.
+
+Only ``.mat`` (MATLAB v5, read with ``scipy.io.loadmat``) is supported: the ``.hdf5`` copies hold the same data
+but need h5py, which this project does not depend on; such a path raises a DataError saying so.
+
+Conventions (from the dataset's ``info`` text and README, confirmed by the frame self-check on all 17 trials):
+
+- ``imu_gyr`` (N, 3) rad/s, ``imu_acc`` (N, 3) m/s^2 specific force, IMU frame; ``imu_mag`` is not read.
+- ``opt_quat`` (N, 4) (w, x, y, z): orientation of the IMU w.r.t. an ENU reference frame, already aligned to the
+  IMU frame by the dataset authors, so it converts to world <- IMU directly. World = ENU, z-up.
+- ``opt_pos`` (N, 3) **m** (not mm): position of the optical rigid body's origin in ENU, which is not
+  necessarily the IMU centre (lever arm undocumented); velocity is differentiated from it (``_assemble``).
+- Time: the file has no stamps; ``t = k / sampling_rate`` (285.714 Hz), starting at 0.
+- Ground truth shares the IMU time grid: rows with NaN (marker occlusion) get ``valid=False`` exactly (the
+  nearest GT row of each IMU sample is the same row; see ``_assemble``).
+- Gravity: ``[0, 0, -9.81]`` m/s^2 (Berlin's normal gravity is 9.813; the difference is below IMU bias).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from learned_imu.datasets._assemble import VEL_WINDOW_S, GtSamples, build_sequence
+from learned_imu.errors import DataError
+from learned_imu.sequence import ImuSequence
+
+GRAVITY = 9.81
+FIELDS = {"imu_gyr": 3, "imu_acc": 3, "opt_quat": 4, "opt_pos": 3}
+
+
+def read_broad(
+    path: str | Path,
+    *,
+    ground_truth: bool = True,
+    gravity: float = GRAVITY,
+    on_gap: str = "error",
+    crop_to_gt: bool = True,
+    check_frame: bool = True,
+    check_units: bool = True,
+    vel_window_s: float = VEL_WINDOW_S,
+) -> ImuSequence | list[ImuSequence]:
+    """Read one BROAD trial ``.mat`` file (see the module docstring for units and frames).
+
+    Args:
+        path: the ``.mat`` file.
+        ground_truth: False to ignore the optical reference.
+        gravity: magnitude of gravity, m/s^2 (world ENU z-up, gravity along -z).
+        on_gap, crop_to_gt, check_frame, check_units, vel_window_s: see ``_assemble.build_sequence``.
+    """
+    path = Path(path)
+    if path.suffix.lower() in (".hdf5", ".h5"):
+        raise DataError(
+            path,
+            "path",
+            "BROAD .hdf5 files are not supported (they need h5py); use the .mat copy "
+            "of the same trial (data_mat/ in the BROAD repository)",
+        )
+    if not path.is_file():
+        raise DataError(path, "path", "file not found")
+    import scipy.io
+
+    try:
+        mat = scipy.io.loadmat(path, variable_names=[*FIELDS, "sampling_rate"])
+    except (ValueError, OSError, NotImplementedError) as err:
+        raise DataError(path, "path", f"not a readable MATLAB v5 file: {err}") from err
+    arrays = {name: _field(mat, name, width, path) for name, width in FIELDS.items()}
+    n = arrays["imu_gyr"].shape[0]
+    for name, value in arrays.items():
+        if value.shape[0] != n:
+            raise DataError(path, name, f"{value.shape[0]} rows, expected {n} like imu_gyr")
+    for name in ("imu_gyr", "imu_acc"):
+        bad = ~np.isfinite(arrays[name]).all(axis=1)
+        if bad.any():
+            raise DataError(path, name, f"non-finite value at sample {int(np.argmax(bad))}")
+    rate = _sampling_rate(mat, path)
+    t = np.arange(n) / rate
+    gt = None
+    if ground_truth:
+        gt = GtSamples.from_quaternions(t, arrays["opt_quat"], "wxyz", arrays["opt_pos"], None, path, "opt_quat")
+    return build_sequence(
+        path.stem,
+        path,
+        t,
+        arrays["imu_gyr"],
+        arrays["imu_acc"],
+        np.array([0.0, 0.0, -gravity]),
+        gt=gt,
+        on_gap=on_gap,
+        crop_to_gt=crop_to_gt,
+        check_frame=check_frame,
+        check_units=check_units,
+        vel_window_s=vel_window_s,
+    )
+
+
+def _field(mat: dict, name: str, width: int, path: Path) -> np.ndarray:
+    if name not in mat:
+        raise DataError(path, name, "missing from the file (is this a BROAD trial?)")
+    value = np.asarray(mat[name], dtype=np.float64)
+    if value.ndim != 2 or value.shape[1] != width:
+        raise DataError(path, name, f"expected shape (N, {width}), got {value.shape}")
+    return value
+
+
+def _sampling_rate(mat: dict, path: Path) -> float:
+    if "sampling_rate" not in mat:
+        raise DataError(path, "sampling_rate", "missing from the file")
+    rate = float(np.asarray(mat["sampling_rate"]).ravel()[0])
+    if not np.isfinite(rate) or rate <= 0:
+        raise DataError(path, "sampling_rate", f"expected a positive rate in Hz, got {rate}")
+    return rate

@@ -1,0 +1,132 @@
+"""Generic IMU CSV / text tables with configurable columns, delimiter and units.
+
+Conventions:
+
+- Columns are given by header name (with or without a ``[unit]`` suffix, e.g. ``"w_RS_S_x"``) or by 0-based index.
+  The defaults read the EuRoC order ``t, gyro(3), acc(3)``.
+- Units are converted at the reader: ``time_unit`` in ``s | ms | us | ns``, ``gyro_unit`` in ``rad/s | deg/s``,
+  ``acc_unit`` in ``m/s^2 | g`` (g = 9.80665 m/s^2). Gyro and acc are in the IMU frame; acc is specific force.
+- Optional ground truth in the same rows: ``gt_pos`` (3 columns, m, world frame), ``gt_quat`` (4 columns holding
+  the quaternion in ``quat_order``: ``"wxyz"`` scalar-first or ``"xyzw"`` scalar-last, rotating IMU vectors into
+  the world frame, i.e. world <- IMU) and optionally ``gt_vel`` (3 columns, m/s, world frame; else differentiated
+  from positions, see ``_assemble``). Rows whose GT values are NaN/Inf (an empty cell is an error, write ``nan``)
+  get ``valid=False``. World frame z-up, gravity ``[0, 0, -gravity]``.
+- With ground truth the IMU is cropped to the valid GT span (``crop_to_gt``) and the frame self-check runs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from learned_imu.datasets._assemble import VEL_WINDOW_S, GtSamples, build_sequence
+from learned_imu.datasets._checks import DEG, STANDARD_GRAVITY, check_timestamps
+from learned_imu.datasets._rotations import QUAT_ORDERS
+from learned_imu.datasets._table import ColumnKey, read_table
+from learned_imu.sequence import ImuSequence
+
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}  # seconds per unit
+GYRO_UNITS = {"rad/s": 1.0, "deg/s": DEG}  # rad/s per unit
+ACC_UNITS = {"m/s^2": 1.0, "g": STANDARD_GRAVITY}  # m/s^2 per unit
+GRAVITY = 9.81
+
+
+def _unit(table: dict[str, float], value: str, option: str) -> float:
+    if value not in table:
+        raise ValueError(f"{option} must be one of {tuple(table)}, got {value!r}")
+    return table[value]
+
+
+def _keys(keys: Sequence[ColumnKey] | None, count: int, option: str) -> list[ColumnKey] | None:
+    if keys is None:
+        return None
+    if isinstance(keys, str | int) or len(keys) != count:
+        raise ValueError(f"{option} must list {count} columns, got {keys!r}")
+    return list(keys)
+
+
+def read_csv(
+    path: str | Path,
+    *,
+    time: ColumnKey = 0,
+    gyro: Sequence[ColumnKey] = (1, 2, 3),
+    acc: Sequence[ColumnKey] = (4, 5, 6),
+    delimiter: str | None = ",",
+    comments: str | None = "#",
+    header: bool | None = None,
+    time_unit: str = "s",
+    gyro_unit: str = "rad/s",
+    acc_unit: str = "m/s^2",
+    gt_pos: Sequence[ColumnKey] | None = None,
+    gt_quat: Sequence[ColumnKey] | None = None,
+    quat_order: str = "wxyz",
+    gt_vel: Sequence[ColumnKey] | None = None,
+    gravity: float = GRAVITY,
+    name: str | None = None,
+    on_duplicate: str = "error",
+    on_gap: str = "error",
+    crop_to_gt: bool = True,
+    check_frame: bool = True,
+    check_units: bool = True,
+    vel_window_s: float = VEL_WINDOW_S,
+) -> ImuSequence | list[ImuSequence]:
+    """Read an IMU table (see the module docstring for the conventions).
+
+    Args:
+        path: the file.
+        time, gyro, acc: time column and the 3 gyro / 3 acc columns (header names or 0-based indices).
+        delimiter: column separator (None: any white space); comments: comment marker or None.
+        header: True / False if the first non-blank line is / is not a header; None detects it.
+        time_unit, gyro_unit, acc_unit: units of the file's columns, converted to s, rad/s, m/s^2.
+        gt_pos, gt_quat, quat_order, gt_vel: optional ground-truth columns (``gt_pos`` and ``gt_quat`` together).
+        gravity: magnitude of gravity, m/s^2 (world z-up).
+        name: sequence name (default: the file stem).
+        on_duplicate, on_gap, crop_to_gt, check_frame, check_units, vel_window_s: see ``_checks`` / ``_assemble``.
+    """
+    t_scale = _unit(TIME_UNITS, time_unit, "time_unit")
+    w_scale = _unit(GYRO_UNITS, gyro_unit, "gyro_unit")
+    a_scale = _unit(ACC_UNITS, acc_unit, "acc_unit")
+    gyro_keys, acc_keys = _keys(gyro, 3, "gyro"), _keys(acc, 3, "acc")
+    pos_keys, quat_keys, vel_keys = _keys(gt_pos, 3, "gt_pos"), _keys(gt_quat, 4, "gt_quat"), _keys(gt_vel, 3, "gt_vel")
+    if (pos_keys is None) != (quat_keys is None):
+        raise ValueError("ground truth needs both gt_pos and gt_quat (or neither)")
+    if quat_order not in QUAT_ORDERS:
+        raise ValueError(f"quat_order must be one of {QUAT_ORDERS}, got {quat_order!r}")
+
+    path = Path(path)
+    table = read_table(path, delimiter=delimiter, comments=comments, header=header)
+    t = table.columns([time], "time")[:, 0]
+    table.require_finite(t[:, None], "time")
+    imu = np.concatenate([table.columns(gyro_keys, "gyro") * w_scale, table.columns(acc_keys, "acc") * a_scale], 1)
+    table.require_finite(imu, "gyro/acc")
+    keep = check_timestamps(t * t_scale, path, "time", on_duplicate=on_duplicate, line_of=table.line_of)
+    t = t[keep] * t_scale
+    gt = None
+    if pos_keys is not None:
+        vel = table.columns(vel_keys, "gt_vel")[keep] if vel_keys is not None else None
+        gt = GtSamples.from_quaternions(
+            t,
+            table.columns(quat_keys, "gt_quat")[keep],
+            quat_order,
+            table.columns(pos_keys, "gt_pos")[keep],
+            vel,
+            path,
+            "gt_quat",
+        )
+    return build_sequence(
+        name or path.stem,
+        path,
+        t,
+        imu[keep, :3],
+        imu[keep, 3:],
+        np.array([0.0, 0.0, -gravity]),
+        gt=gt,
+        on_gap=on_gap,
+        crop_to_gt=crop_to_gt,
+        check_frame=check_frame,
+        check_units=check_units,
+        vel_window_s=vel_window_s,
+        line_of=lambda row: table.line_of(int(keep[row])),
+    )

@@ -1,0 +1,127 @@
+"""EuRoC MAV / TUM-VI sequences in the ASL folder layout, read unchanged.
+
+Layout: ``<seq>/mav0/imu0/data.csv`` and, optionally, ground truth in ``<seq>/mav0/state_groundtruth_estimate0/``
+as the official ``data.csv`` or a TUM-format ``groundtruth_tum.txt`` (the official file wins when both exist).
+
+Conventions:
+
+- IMU ``data.csv``: ``t [ns], w_RS_S (3) [rad/s], a_RS_S (3) [m/s^2]``, comma separated; gyro and specific force
+  in the IMU frame S (= body frame, T_BS = identity). Time becomes seconds (``ns * 1e-9``, absolute, float64:
+  ~0.25 us resolution, fine for the time steps; spreadsheet-rounded stamps are accepted as they are).
+- Official ground truth (``.csv``): 17 columns ``t [ns], p_RS_R (3) [m], q_RS (w, x, y, z), v_RS_R (3) [m/s],
+  b_w (3), b_a (3)``; the file velocity is used, biases are ignored. An 8-column ASL pose file (no velocity) is
+  accepted too and its velocity differentiated. ``q_RS`` rotates S-vectors into R: it is world <- IMU directly.
+- TUM ground truth (``.txt``): ``t [s], p (3) [m], q (x, y, z, w)``, space separated, no velocity: velocity is
+  differentiated from the positions (local cubic fit over 0.05 s, see ``_assemble``; 3.2 mm/s rms against the
+  official velocity on V1_02).
+- World R (Leica / Vicon frame) is z-up; gravity ``[0, 0, -9.81007]`` m/s^2 as AirIMU uses.
+- The IMU is cropped to the ground-truth span (``crop_to_gt=True``; ground truth starts ~1 s after the IMU);
+  ground truth is resampled to the IMU stamps (linear / slerp), gaps longer than 5 GT steps -> ``valid=False``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from learned_imu.datasets._assemble import VEL_WINDOW_S, GtSamples, build_sequence, resolve
+from learned_imu.datasets._checks import check_timestamps
+from learned_imu.datasets._table import read_table
+from learned_imu.errors import DataError
+from learned_imu.sequence import ImuSequence
+
+GRAVITY = 9.81007  # m/s^2, the value AirIMU uses for EuRoC
+NS = 1e-9
+IMU_FILE = Path("mav0/imu0/data.csv")
+GT_DIR = Path("mav0/state_groundtruth_estimate0")
+GT_FILES = (GT_DIR / "data.csv", GT_DIR / "groundtruth_tum.txt")
+ASL_POSE_COLUMNS = 8  # t, p(3), q_wxyz(4)
+ASL_STATE_COLUMNS = 11  # ... + v(3); the official file has 17 (+ b_w, b_a)
+TUM_COLUMNS = 8  # t, p(3), q_xyzw(4)
+
+
+def read_euroc(
+    path: str | Path,
+    *,
+    imu_file: str | Path | None = None,
+    gt_file: str | Path | None = None,
+    ground_truth: bool = True,
+    gravity: float = GRAVITY,
+    on_duplicate: str = "error",
+    on_gap: str = "error",
+    crop_to_gt: bool = True,
+    check_frame: bool = True,
+    check_units: bool = True,
+    vel_window_s: float = VEL_WINDOW_S,
+) -> ImuSequence | list[ImuSequence]:
+    """Read one EuRoC / TUM-VI sequence folder (the one holding ``mav0/``).
+
+    Args:
+        path: the sequence folder.
+        imu_file: IMU csv relative to ``path`` (or absolute); default ``mav0/imu0/data.csv``.
+        gt_file: ground-truth file relative to ``path`` (or absolute); ``.txt`` is read as TUM, anything else as
+            ASL. Default: the official ``data.csv``, else ``groundtruth_tum.txt``, else no ground truth.
+        ground_truth: False to ignore any ground truth.
+        gravity: magnitude of gravity, m/s^2 (world z-up, gravity along -z).
+        on_duplicate, on_gap, crop_to_gt, check_frame, check_units, vel_window_s: see ``_assemble.build_sequence``
+            and ``_checks.check_timestamps``.
+    """
+    root = Path(path)
+    if not root.is_dir():
+        raise DataError(root, "path", "not a directory (expected a EuRoC sequence folder holding mav0/)")
+    imu_path = resolve(root, imu_file or IMU_FILE)
+    if not imu_path.is_file():
+        folder = imu_path.parent
+        there = sorted(p.name for p in folder.iterdir()) if folder.is_dir() else []
+        raise DataError(
+            imu_path, "imu_file", f"IMU file not found (files in {folder}: {there or 'none'}; pass imu_file=...)"
+        )
+    table = read_table(imu_path, delimiter=",", min_columns=7, field="imu")
+    raw = table.data[:, :7]
+    table.require_finite(raw, "imu")
+    keep = check_timestamps(raw[:, 0] * NS, imu_path, "t", on_duplicate=on_duplicate, line_of=table.line_of)
+    raw = raw[keep]
+    gt = None
+    if ground_truth:
+        gt_path = (
+            resolve(root, gt_file)
+            if gt_file is not None
+            else next((root / f for f in GT_FILES if (root / f).is_file()), None)
+        )
+        if gt_path is not None:
+            gt = read_euroc_ground_truth(gt_path, on_duplicate=on_duplicate)
+    return build_sequence(
+        root.name,
+        imu_path,
+        raw[:, 0] * NS,
+        raw[:, 1:4],
+        raw[:, 4:7],
+        np.array([0.0, 0.0, -gravity]),
+        gt=gt,
+        on_gap=on_gap,
+        crop_to_gt=crop_to_gt,
+        check_frame=check_frame,
+        check_units=check_units,
+        vel_window_s=vel_window_s,
+        line_of=lambda row: table.line_of(int(keep[row])),
+    )
+
+
+def read_euroc_ground_truth(path: str | Path, *, on_duplicate: str = "error") -> GtSamples:
+    """Ground truth at its own stamps from an ASL ``data.csv`` or a TUM ``.txt`` (see the module docstring)."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(path, "gt_file", "ground-truth file not found")
+    tum = path.suffix == ".txt"
+    if tum:
+        table = read_table(path, delimiter=None, min_columns=TUM_COLUMNS, field="gt")
+        t, pos, quat, order, vel = table.data[:, 0], table.data[:, 1:4], table.data[:, 4:8], "xyzw", None
+    else:
+        table = read_table(path, delimiter=",", min_columns=ASL_POSE_COLUMNS, field="gt")
+        t, pos, quat, order = table.data[:, 0] * NS, table.data[:, 1:4], table.data[:, 4:8], "wxyz"
+        vel = table.data[:, 8:11] if table.data.shape[1] >= ASL_STATE_COLUMNS else None
+    table.require_finite(t[:, None], "gt.t")
+    keep = check_timestamps(t, path, "gt.t", on_duplicate=on_duplicate, line_of=table.line_of)
+    vel = vel[keep] if vel is not None else None
+    return GtSamples.from_quaternions(t[keep], quat[keep], order, pos[keep], vel, path)

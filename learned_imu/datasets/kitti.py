@@ -1,0 +1,100 @@
+"""KITTI raw IMU + GPS as GTSAM ships it for ``IMUKittiExampleGPS.py`` (``KittiEquivBiasedImu.txt`` and
+``KittiGps_converted.txt``).
+
+Conventions (those of gtsam's ``IMUKittiExampleGPS.py`` loaders):
+
+- IMU file, space separated, one header line ``Time dt accelX accelY accelZ omegaX omegaY omegaZ``: time of day
+  of the OXTS clock [s], dt [s] since the previous sample (not used: recomputed from ``Time``), then **accel
+  first** (specific force, m/s^2), then gyro (rad/s), in the IMU/body frame (body <- IMU is identity per the
+  metadata file; z-up, OXTS forward-left-up).
+- The first IMU row has no predecessor (its ``dt`` equals its absolute time) and comes 1.92 s before the second
+  one; it is dropped by default (``skip_first=True``), so the remaining stream has no gap.
+- GPS file, comma separated, header ``Time,X,Y,Z``: time on the IMU clock [s], position [m] in a local z-up
+  (east/north/up-like) frame. Fixes outside the IMU time span are dropped (that is the first fix, 2.9 s before
+  the others; gtsam's example also starts at fix 1). ``sigma`` = sqrt(0.07) m per axis, the example's GPS noise
+  (``noiseModel.Diagonal.Precisions([0, 0, 0] + [1/0.07] * 3)``: precision 1/0.07, i.e. variance 0.07 m^2).
+- Gravity ``[0, 0, -9.8]`` m/s^2 (``PreintegrationParams.MakeSharedU(9.8)`` in the example).
+- No ground truth (``gt=None``): the KITTI odometry poses in the shared data are not aligned in time or frame.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from learned_imu.datasets._assemble import build_sequence
+from learned_imu.datasets._checks import check_timestamps
+from learned_imu.datasets._table import read_table
+from learned_imu.errors import DataError
+from learned_imu.sequence import GpsFixes, ImuSequence
+
+GRAVITY = 9.8  # m/s^2, as gtsam's IMUKittiExampleGPS.py
+GPS_SIGMA = float(np.sqrt(0.07))  # m per axis, from the example's GPS precision 1/0.07
+IMU_FILE = "KittiEquivBiasedImu.txt"
+GPS_FILE = "KittiGps_converted.txt"
+IMU_COLUMNS = ("Time", "dt", "accelX", "accelY", "accelZ", "omegaX", "omegaY", "omegaZ")
+GPS_COLUMNS = ("Time", "X", "Y", "Z")
+
+
+def read_kitti(
+    path: str | Path | None = None,
+    *,
+    imu_file: str = IMU_FILE,
+    gps_file: str | None = GPS_FILE,
+    skip_first: bool = True,
+    gps_sigma: float = GPS_SIGMA,
+    gravity: float = GRAVITY,
+    on_duplicate: str = "error",
+    on_gap: str = "error",
+    check_units: bool = True,
+) -> ImuSequence | list[ImuSequence]:
+    """Read the GTSAM KITTI IMU (+ GPS) example (see the module docstring for units and frames).
+
+    Args:
+        path: folder holding the two files; None: the copies installed with gtsam
+            (``gtsam.findExampleDataFile``).
+        imu_file, gps_file: file names inside ``path``; ``gps_file=None`` reads the IMU only.
+        skip_first: drop the first IMU row (no predecessor, 1.92 s before the second row).
+        gps_sigma: one-sigma GPS position noise per axis, m.
+        gravity: magnitude of gravity, m/s^2 (world z-up, gravity along -z).
+        on_duplicate, on_gap, check_units: see ``_checks.check_timestamps`` and ``_assemble.build_sequence``.
+    """
+    imu_path = _locate(path, imu_file)
+    table = read_table(imu_path, delimiter=None, min_columns=len(IMU_COLUMNS), field="imu")
+    raw = table.columns(IMU_COLUMNS if table.header else range(len(IMU_COLUMNS)), "imu")
+    table.require_finite(raw, "imu")
+    rows = np.arange(raw.shape[0])[1 if skip_first else 0 :]
+    keep = rows[check_timestamps(raw[rows, 0], imu_path, "Time", on_duplicate=on_duplicate, line_of=table.line_of)]
+    t, acc, gyro = raw[keep, 0], raw[keep, 2:5], raw[keep, 5:8]
+    gps = _read_gps(_locate(path, gps_file), gps_sigma) if gps_file is not None else None
+    return build_sequence(
+        "kitti_gtsam",
+        imu_path,
+        t,
+        gyro,
+        acc,
+        np.array([0.0, 0.0, -gravity]),
+        gps=gps,
+        on_gap=on_gap,
+        check_units=check_units,
+        line_of=lambda row: table.line_of(int(keep[row])),
+    )
+
+
+def _locate(path: str | Path | None, name: str) -> Path:
+    if path is not None:
+        return Path(path) / name
+    import gtsam  # only here: learned_imu never imports gtsam otherwise
+
+    return Path(gtsam.findExampleDataFile(name))
+
+
+def _read_gps(path: Path, sigma: float) -> GpsFixes:
+    if not sigma > 0:
+        raise DataError(path, "gps_sigma", f"must be positive, got {sigma}")
+    table = read_table(path, delimiter=",", min_columns=len(GPS_COLUMNS), field="gps")
+    raw = table.columns(GPS_COLUMNS if table.header else range(len(GPS_COLUMNS)), "gps")
+    table.require_finite(raw, "gps")
+    keep = check_timestamps(raw[:, 0], path, "Time", line_of=table.line_of)
+    return GpsFixes(t=raw[keep, 0], pos=raw[keep, 1:4], sigma=np.full((keep.size, 3), float(sigma)))

@@ -1,0 +1,168 @@
+"""ROS 1 bags, ROS 2 bags (sqlite3 or MCAP storage) and bare ``.mcap`` / ``.db3`` files, via ``rosbags``.
+
+Conventions:
+
+- IMU: ``sensor_msgs/Imu``; ``angular_velocity`` rad/s and ``linear_acceleration`` m/s^2 (specific force: the
+  reaction to gravity included, REP 145), in the message's IMU frame. ``orientation`` is ignored.
+- Time: ``header.stamp`` in s (``stamp="header"``, default) or the bag's receive time (``stamp="bag"``).
+- Optional ground truth from ``gt_topic``: ``nav_msgs/Odometry``, ``geometry_msgs/PoseStamped`` or
+  ``geometry_msgs/PoseWithCovarianceStamped``. The pose is taken as the pose of the IMU frame in a z-up world
+  frame (REP 103/105: ENU / odom); quaternions (x, y, z, w) -> world <- IMU matrices. No extrinsics are applied:
+  the pose's child frame must be the IMU frame. Odometry velocity: ``twist.linear`` is in the child frame
+  (nav_msgs definition) and is rotated to the world frame; ``use_twist=False`` (and the PoseStamped types)
+  differentiate positions instead (``_assemble``).
+- Gravity ``[0, 0, -gravity]``, default 9.81 m/s^2. IMU cropped to the GT span as in every reader.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from learned_imu.datasets._assemble import VEL_WINDOW_S, GtSamples, build_sequence
+from learned_imu.datasets._checks import check_timestamps
+from learned_imu.errors import DataError
+from learned_imu.sequence import ImuSequence
+
+logger = logging.getLogger(__name__)
+
+GRAVITY = 9.81
+IMU_TYPE = "sensor_msgs/msg/Imu"
+ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
+POSE_TYPES = ("geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/PoseWithCovarianceStamped")
+STAMPS = ("header", "bag")
+
+
+def read_rosbag(
+    path: str | Path,
+    *,
+    imu_topic: str | None = None,
+    gt_topic: str | None = None,
+    stamp: str = "header",
+    use_twist: bool = True,
+    gravity: float = GRAVITY,
+    name: str | None = None,
+    on_duplicate: str = "error",
+    on_gap: str = "error",
+    crop_to_gt: bool = True,
+    check_frame: bool = True,
+    check_units: bool = True,
+    vel_window_s: float = VEL_WINDOW_S,
+) -> ImuSequence | list[ImuSequence]:
+    """Read IMU (and optional ground truth) from a bag (see the module docstring for the conventions).
+
+    Args:
+        path: ``.bag`` (ROS 1), a ROS 2 bag folder, or a ``.mcap`` / ``.db3`` file.
+        imu_topic: IMU topic; default the first ``sensor_msgs/Imu`` topic in name order.
+        gt_topic: ground-truth topic (Odometry / PoseStamped / PoseWithCovarianceStamped); None: no ground truth.
+        stamp: ``"header"`` (message stamps) or ``"bag"`` (receive time).
+        use_twist: Odometry only; False differentiates positions instead of using the twist.
+        gravity: magnitude of gravity, m/s^2 (world z-up).
+        name: sequence name (default: the bag's stem).
+        on_duplicate, on_gap, crop_to_gt, check_frame, check_units, vel_window_s: see ``_checks`` / ``_assemble``.
+    """
+    from rosbags.highlevel import AnyReader, AnyReaderError
+    from rosbags.typesys import Stores, get_typestore
+
+    if stamp not in STAMPS:
+        raise ValueError(f"stamp must be one of {STAMPS}, got {stamp!r}")
+    path = Path(path)
+    if not path.exists():
+        raise DataError(path, "path", "bag not found")
+    try:
+        with AnyReader([path], default_typestore=get_typestore(Stores.LATEST)) as reader:
+            types = {topic: info.msgtype for topic, info in reader.topics.items()}
+            imu_topic = imu_topic or _default_imu_topic(path, types)
+            _require_topic(path, types, imu_topic, (IMU_TYPE,), "imu_topic")
+            imu = _collect(reader, imu_topic, stamp, _imu_row)
+            gt = None
+            if gt_topic is not None:
+                kind = _require_topic(path, types, gt_topic, (ODOMETRY_TYPE, *POSE_TYPES), "gt_topic")
+                rows = _collect(reader, gt_topic, stamp, _odometry_row if kind == ODOMETRY_TYPE else _pose_row)
+                gt = _ground_truth(path, gt_topic, rows, use_twist and kind == ODOMETRY_TYPE, on_duplicate)
+    except AnyReaderError as err:
+        raise DataError(path, "bag", f"cannot read: {err}") from err
+    if imu.shape[0] == 0:
+        raise DataError(path, imu_topic, "no messages on the IMU topic")
+    if stamp == "header" and imu.shape[0] > 1 and np.ptp(imu[:, 0]) == 0:
+        raise DataError(path, f"{imu_topic}.stamp", "all header stamps are equal (unset?); pass stamp='bag'")
+    keep = check_timestamps(imu[:, 0], path, f"{imu_topic}.stamp", on_duplicate=on_duplicate)
+    imu = imu[keep]
+    return build_sequence(
+        name or path.stem,
+        path,
+        imu[:, 0],
+        imu[:, 1:4],
+        imu[:, 4:7],
+        np.array([0.0, 0.0, -gravity]),
+        gt=gt,
+        on_gap=on_gap,
+        crop_to_gt=crop_to_gt,
+        check_frame=check_frame,
+        check_units=check_units,
+        vel_window_s=vel_window_s,
+    )
+
+
+def _default_imu_topic(path: Path, types: dict[str, str]) -> str:
+    topics = sorted(topic for topic, msgtype in types.items() if msgtype == IMU_TYPE)
+    if not topics:
+        raise DataError(path, "imu_topic", f"no sensor_msgs/Imu topic in the bag (topics: {types})")
+    if len(topics) > 1:
+        logger.warning("%s: several IMU topics %s, reading %s (pass imu_topic=...)", path, topics, topics[0])
+    return topics[0]
+
+
+def _require_topic(path: Path, types: dict[str, str], topic: str, allowed: tuple[str, ...], option: str) -> str:
+    if topic not in types:
+        raise DataError(path, option, f"topic {topic!r} not in the bag (topics: {types})")
+    if types[topic] not in allowed:
+        raise DataError(path, option, f"topic {topic!r} has type {types[topic]}, expected one of {allowed}")
+    return types[topic]
+
+
+def _collect(reader, topic: str, stamp: str, row) -> np.ndarray:
+    """(M, k) array of ``[t, *row(msg)]`` for every message on ``topic``, in bag order."""
+    connections = [c for c in reader.connections if c.topic == topic]
+    out = []
+    for connection, bag_ns, raw in reader.messages(connections=connections):
+        msg = reader.deserialize(raw, connection.msgtype)
+        t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec if stamp == "header" else 1e-9 * bag_ns
+        out.append([t, *row(msg)])
+    return np.asarray(out, dtype=np.float64).reshape(len(out), -1)
+
+
+def _xyz(v) -> tuple[float, float, float]:
+    return v.x, v.y, v.z
+
+
+def _imu_row(msg) -> list[float]:
+    return [*_xyz(msg.angular_velocity), *_xyz(msg.linear_acceleration)]
+
+
+def _pose_values(pose) -> list[float]:
+    q = pose.orientation
+    return [*_xyz(pose.position), q.x, q.y, q.z, q.w]
+
+
+def _pose_row(msg) -> list[float]:
+    pose = msg.pose.pose if hasattr(msg.pose, "covariance") else msg.pose
+    return _pose_values(pose)
+
+
+def _odometry_row(msg) -> list[float]:
+    return [*_pose_values(msg.pose.pose), *_xyz(msg.twist.twist.linear)]
+
+
+def _ground_truth(path: Path, topic: str, rows: np.ndarray, use_twist: bool, on_duplicate: str) -> GtSamples:
+    if rows.shape[0] < 2:
+        raise DataError(path, topic, f"ground truth needs at least 2 messages, got {rows.shape[0]}")
+    keep = check_timestamps(rows[:, 0], path, f"{topic}.stamp", on_duplicate=on_duplicate)
+    rows = rows[keep]
+    gt = GtSamples.from_quaternions(rows[:, 0], rows[:, 4:8], "xyzw", rows[:, 1:4], None, path, f"{topic}.orientation")
+    if not use_twist:
+        return gt
+    vel = np.einsum("nij,nj->ni", gt.rot, rows[:, 8:11])  # child (IMU) frame -> world
+    return GtSamples(gt.t, gt.rot, gt.pos, vel, gt.valid & np.isfinite(vel).all(axis=1), path)

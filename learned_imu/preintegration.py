@@ -59,7 +59,7 @@ class NavState:
     pos: torch.Tensor
 
 
-def preintegrate(gyro, acc, dt, gyro_cov=None, acc_cov=None) -> Preintegrated:
+def preintegrate(gyro, acc, dt, gyro_cov=None, acc_cov=None, at=None) -> Preintegrated:
     """Preintegrate IMU samples, optionally propagating their noise into a 9x9 covariance per sample.
 
     Args:
@@ -68,11 +68,16 @@ def preintegrate(gyro, acc, dt, gyro_cov=None, acc_cov=None) -> Preintegrated:
         dt: time step of each sample, s: a float or (..., N).
         gyro_cov: gyroscope noise density (rad^2/s): a float, a (3,) diagonal or per sample (..., N, 3).
         acc_cov: accelerometer noise density (m^2/s^3): a float, a (3,) diagonal or per sample (..., N, 3).
+        at: which samples to report, as an index, a slice or a 1-D sequence of indices into N (e.g.
+            ``slice(49, None, 50)`` for every 50th, as AirIMU supervises); default every sample. Reporting
+            fewer samples skips their covariance chart mapping, the costliest part after the scan.
 
     Returns:
-        ``Preintegrated`` after every sample; ``cov`` only if both densities are given.
+        ``Preintegrated`` after each reported sample (K of them: shapes (..., K, ...)); ``cov`` only if both
+        densities are given.
     """
     gyro, acc, dt = _check_samples(gyro, acc, dt)
+    index = _check_index(at, gyro.shape[-2])
     if (gyro_cov is None) != (acc_cov is None):
         raise InputError("preintegrate: give both gyro_cov and acc_cov, or neither")
     with_cov = gyro_cov is not None
@@ -88,12 +93,15 @@ def preintegrate(gyro, acc, dt, gyro_cov=None, acc_cov=None) -> Preintegrated:
     vel = torch.cumsum(force * h, dim=-1)
     vel_before = vel - force * h
     pos = torch.cumsum(vel_before * h + 0.5 * force * h * h, dim=-1)
-    cov = _propagate_covariance(w, h, rot, rot_before, force, gyro_cov, acc_cov) if with_cov else None
+    cov = _propagate_covariance(w, h, rot, rot_before, force, gyro_cov, acc_cov, index) if with_cov else None
+    if index is not None:
+        rot, vel, pos = rot[..., index], vel[..., index], pos[..., index]
+    elapsed = torch.cumsum(dt, dim=-1)
     return Preintegrated(
         rot=_samples_first(rot, 2),
         vel=_samples_first(vel, 1),
         pos=_samples_first(pos, 1),
-        dt=torch.cumsum(dt, dim=-1),
+        dt=elapsed if index is None else elapsed[..., index],
         cov=None if cov is None else _samples_first(cov, 2),
     )
 
@@ -173,11 +181,9 @@ def _odd_even_scan(mats: torch.Tensor) -> torch.Tensor:
     return torch.cat([out, even[..., half:]], dim=-1) if n % 2 else out
 
 
-def _propagate_covariance(w, h, rot, rot_before, force, gyro_cov, acc_cov) -> torch.Tensor:
-    """Covariance (..., 9, 9, N) after each sample in GTSAM's tangent chart; see the module docstring.
-
-    Samples-last layout throughout; ``h`` is dt shaped (..., 1, N).
-    """
+def _propagate_covariance(w, h, rot, rot_before, force, gyro_cov, acc_cov, index) -> torch.Tensor:
+    """Covariance (..., 9, 9, K) in GTSAM's tangent chart after the samples ``index`` (all if None); see the
+    module docstring. Samples-last layout throughout; ``h`` is dt shaped (..., 1, N)."""
 
     def mm(x, y, transpose_y=False):
         return so3.matmul(x, y, dim=-2, transpose_b=transpose_y)
@@ -205,6 +211,10 @@ def _propagate_covariance(w, h, rot, rot_before, force, gyro_cov, acc_cov) -> to
     w_term = hh * (z_ex + tr(z_ex) + 0.5 * (ym + tr(ym))) + hh * hh * (v_ex + 0.5 * xm_sym + 0.25 * (mpm + q_acc))
     w_inc = torch.cumsum(w_term, dim=-1)  # Sigma_p,p
 
+    if index is not None:
+        rot, p_inc, x_inc, v_inc, y_inc, z_inc, w_inc = (
+            t[..., index] for t in (rot, p_inc, x_inc, v_inc, y_inc, z_inc, w_inc)
+        )
     # Map the rotation error from the start frame to GTSAM's tangent chart at theta_k = Log(dR_k).
     to_tangent = mm(so3.right_jacobian_inv(so3.log(rot, dim=-2), dim=-2), rot, True)
     rp, rv = mm(to_tangent, y_inc, True), mm(to_tangent, x_inc, True)
@@ -251,6 +261,22 @@ def _check_samples(gyro, acc, dt):
     if (dt <= 0).any():
         raise InputError("preintegrate: dt must be positive for every sample")
     return gyro, acc, dt
+
+
+def _check_index(at, n: int) -> torch.Tensor | None:
+    """``at`` -> a 1-D index tensor into N samples (None for all samples)."""
+    if at is None:
+        return None
+    try:
+        if not isinstance(at, int | slice | torch.Tensor):
+            at = torch.as_tensor(at, dtype=torch.long)  # a sequence of indices; a string fails here
+        index = torch.arange(n)[at]
+    except (IndexError, TypeError, ValueError, RuntimeError) as err:
+        raise InputError(f"preintegrate: at={at!r} does not index {n} samples: {err}") from None
+    index = index.reshape(-1)
+    if index.numel() == 0:
+        raise InputError(f"preintegrate: at={at!r} selects no sample of {n}")
+    return index
 
 
 def _check_density(name: str, value, samples: torch.Tensor) -> torch.Tensor:

@@ -157,6 +157,25 @@ def test_short_and_non_power_of_two_lengths(n):
     assert rel_err(scan.cov, loop.cov.numpy()) < 1e-12
 
 
+@pytest.mark.parametrize("at", [slice(49, None, 50), [0, 7, 99], -1, torch.tensor([3, 3, 50])])
+def test_reporting_selected_samples_equals_selecting_from_all(at):
+    gyro, acc = imu_samples(100, max_rate=2.0, seed=13, batch=(2,))
+    g, a = torch.tensor(gyro), torch.tensor(acc)
+    full = preintegrate(g, a, DT, GYRO_DENSITY, ACC_DENSITY)
+    some = preintegrate(g, a, DT, GYRO_DENSITY, ACC_DENSITY, at=at)
+    index = torch.arange(100)[at].reshape(-1)
+    assert some.cov.shape == (2, len(index), 9, 9)
+    for field in ("rot", "vel", "pos", "dt", "cov"):
+        assert torch.equal(getattr(some, field), getattr(full, field)[:, index]), field
+
+
+@pytest.mark.parametrize("at", [100, [0, 200], slice(100, None), "last"])
+def test_bad_sample_selection_raises(at):
+    gyro, acc = imu_samples(100, max_rate=1.0)
+    with pytest.raises(ValueError, match="at="):
+        preintegrate(torch.tensor(gyro), torch.tensor(acc), DT, at=at)
+
+
 def test_predict_equals_gtsam_predict():
     gyro, acc = imu_samples(200, max_rate=1.0, seed=10)
     *_, pim = gtsam_loop(gtsam.PreintegratedImuMeasurementsManifold, gyro, acc, DT)

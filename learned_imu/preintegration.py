@@ -86,14 +86,16 @@ def preintegrate(gyro, acc, dt, gyro_cov=None, acc_cov=None, at=None) -> Preinte
         acc_cov = _samples_last(_check_density("acc_cov", acc_cov, acc))
     # Internally samples are last: vectors (..., 3, N), matrices (..., 3, 3, N); see so3's docstring.
     w, a, h = _samples_last(gyro), _samples_last(acc), dt[..., None, :]
-    step = so3.exp(w * h, dim=-2)
+    step, step_jacobian = so3.exp_and_right_jacobian(w * h, dim=-2)
     rot = _cumulative_product(step)  # dR after each sample
     rot_before = torch.cat([_eye_like(rot[..., :1]), rot[..., :-1]], dim=-1)
     force = so3.matvec(rot_before, a, dim=-2)  # dR_k a_k, start frame
     vel = torch.cumsum(force * h, dim=-1)
     vel_before = vel - force * h
     pos = torch.cumsum(vel_before * h + 0.5 * force * h * h, dim=-1)
-    cov = _propagate_covariance(w, h, rot, rot_before, force, gyro_cov, acc_cov, index) if with_cov else None
+    cov = None
+    if with_cov:
+        cov = _propagate_covariance(step_jacobian, h, rot, rot_before, force, gyro_cov, acc_cov, index)
     if index is not None:
         rot, vel, pos = rot[..., index], vel[..., index], pos[..., index]
     elapsed = torch.cumsum(dt, dim=-1)
@@ -181,7 +183,7 @@ def _odd_even_scan(mats: torch.Tensor) -> torch.Tensor:
     return torch.cat([out, even[..., half:]], dim=-1) if n % 2 else out
 
 
-def _propagate_covariance(w, h, rot, rot_before, force, gyro_cov, acc_cov, index) -> torch.Tensor:
+def _propagate_covariance(step_jacobian, h, rot, rot_before, force, gyro_cov, acc_cov, index) -> torch.Tensor:
     """Covariance (..., 9, 9, K) in GTSAM's tangent chart after the samples ``index`` (all if None); see the
     module docstring. Samples-last layout throughout; ``h`` is dt shaped (..., 1, N)."""
 
@@ -193,7 +195,7 @@ def _propagate_covariance(w, h, rot, rot_before, force, gyro_cov, acc_cov, index
 
     hh = h[..., None, :, :]  # dt for matrices, (..., 1, 1, N)
     # Per-sample noise injected into the start-frame error state [phi, v, p].
-    lever = mm(rot, so3.right_jacobian(w * h, dim=-2))  # d phi_{k+1} / d(gyro noise dt)
+    lever = mm(rot, step_jacobian)  # d phi_{k+1} / d(gyro noise dt), Jr(w dt) of each step
     g_phi = mm(lever * (gyro_cov * h)[..., None, :, :], lever, True)  # Cov of the phi increment
     q_acc = mm(rot_before * (acc_cov * h)[..., None, :, :], rot_before, True)  # Cov of the v increment
     m = -so3.hat(force, dim=-2) * hh  # d v_{k+1} / d phi_k
@@ -216,7 +218,7 @@ def _propagate_covariance(w, h, rot, rot_before, force, gyro_cov, acc_cov, index
             t[..., index] for t in (rot, p_inc, x_inc, v_inc, y_inc, z_inc, w_inc)
         )
     # Map the rotation error from the start frame to GTSAM's tangent chart at theta_k = Log(dR_k).
-    to_tangent = mm(so3.right_jacobian_inv(so3.log(rot, dim=-2), dim=-2), rot, True)
+    to_tangent = mm(so3.log_and_right_jacobian_inv(rot, dim=-2)[1], rot, True)
     rp, rv = mm(to_tangent, y_inc, True), mm(to_tangent, x_inc, True)
     blocks = (
         (mm(mm(to_tangent, p_inc), to_tangent, True), rp, rv),

@@ -106,14 +106,19 @@ def _angle_terms(phi: torch.Tensor, dim: int):
     return theta_sq, safe_sq, torch.sqrt(safe_sq), small
 
 
-def _compose(phi: torch.Tensor, theta_sq, beta, gamma, dim: int) -> torch.Tensor:
-    """``I + beta [phi]x + gamma [phi]x^2``, using ``[phi]x^2 = phi phi^T - theta^2 I`` (no inner matmul)."""
+def _basis(phi: torch.Tensor, dim: int):
+    """Identity (broadcastable), ``[phi]x`` and ``phi phi^T`` with matrix axes (dim - 1, dim); dim is negative."""
     eye_shape = [1] * (phi.ndim + 1)
-    eye_shape[dim - 1] = 3  # matrix axes (dim - 1, dim); dim is negative
+    eye_shape[dim - 1] = 3
     eye_shape[dim] = 3
     eye = torch.eye(3, dtype=phi.dtype, device=phi.device).view(eye_shape)
-    outer = phi.unsqueeze(dim) * phi.unsqueeze(dim - 1)
-    return (1 - gamma * theta_sq) * eye + beta * hat(phi, dim) + gamma * outer
+    return eye, hat(phi, dim), phi.unsqueeze(dim) * phi.unsqueeze(dim - 1)
+
+
+def _compose(phi: torch.Tensor, theta_sq, beta, gamma, dim: int) -> torch.Tensor:
+    """``I + beta [phi]x + gamma [phi]x^2``, using ``[phi]x^2 = phi phi^T - theta^2 I`` (no inner matmul)."""
+    eye, k, outer = _basis(phi, dim)
+    return (1 - gamma * theta_sq) * eye + beta * k + gamma * outer
 
 
 def exp(phi: torch.Tensor, dim: int = -1) -> torch.Tensor:
@@ -124,6 +129,20 @@ def exp(phi: torch.Tensor, dim: int = -1) -> torch.Tensor:
     # (1 - cos t) / t^2 written as 2 sin^2(t/2) / t^2 to avoid cancellation
     b = torch.where(small, 0.5 - theta_sq / 24 + theta_sq**2 / 720, 2 * half_sin * half_sin / safe_sq)
     return _compose(phi, theta_sq, a, b, dim)
+
+
+def exp_and_right_jacobian(phi: torch.Tensor, dim: int = -1) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(exp(phi), right_jacobian(phi))`` sharing their angle terms (fewer kernel launches)."""
+    theta_sq, safe_sq, theta, small = _angle_terms(phi, dim)
+    half_sin = torch.sin(0.5 * theta)
+    sin = torch.sin(theta)
+    a = torch.where(small, 1 - theta_sq / 6 + theta_sq**2 / 120, sin / theta)
+    b = torch.where(small, 0.5 - theta_sq / 24 + theta_sq**2 / 720, 2 * half_sin * half_sin / safe_sq)
+    c = torch.where(small, 1 / 6 - theta_sq / 120 + theta_sq**2 / 5040, (theta - sin) / (theta * safe_sq))
+    eye, k, outer = _basis(phi, dim)
+    rot = (1 - b * theta_sq) * eye + a * k + b * outer
+    jac = (1 - c * theta_sq) * eye - b * k + c * outer
+    return rot, jac
 
 
 def right_jacobian(phi: torch.Tensor, dim: int = -1) -> torch.Tensor:
@@ -195,3 +214,38 @@ def log(rot: torch.Tensor, dim: int = -1) -> torch.Tensor:
         2 * torch.atan2(sin_half, w) / sin_half,
     )
     return scale * v
+
+
+# Below this cosine of the angle (about 172 deg) the skew-part formula of ``log`` loses accuracy.
+_NEAR_PI_COS = -0.99
+
+
+def log_and_right_jacobian_inv(rot: torch.Tensor, dim: int = -1) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(log(rot), right_jacobian_inv(log(rot)))`` from the trace and skew part of ``rot``, sharing cos and sin.
+
+    Falls back to the quaternion route of ``log`` when any angle is within ~8 deg of pi.
+    """
+    m = [[rot.select(dim - 1, i).select(dim, j) for j in range(3)] for i in range(3)]
+    cos = 0.5 * (m[0][0] + m[1][1] + m[2][2] - 1)
+    if bool((cos < _NEAR_PI_COS).any()):
+        phi = log(rot, dim)
+        return phi, right_jacobian_inv(phi, dim)
+    v = 0.5 * torch.stack([m[2][1] - m[1][2], m[0][2] - m[2][0], m[1][0] - m[0][1]], dim)  # sin(theta) * axis
+    sin_sq = (v * v).sum(dim, keepdim=True)
+    cos = cos.unsqueeze(dim)
+    small = sin_sq < _SMALL_ANGLE_SQ
+    safe_sin_sq = torch.where(small, torch.ones_like(sin_sq), sin_sq)
+    sin = torch.sqrt(safe_sin_sq)
+    theta = torch.atan2(sin, cos)
+    # theta / sin(theta) = asin(s)/s for small s = sin(theta) (cos > 0 there): 1 + s^2/6 + 3 s^4/40 + 5 s^6/112
+    scale = torch.where(small, 1 + sin_sq / 6 + 3 * sin_sq**2 / 40 + 5 * sin_sq**3 / 112, theta / sin)
+    phi = scale * v
+    theta_sq = (scale * scale * sin_sq).unsqueeze(dim)
+    # 1/t^2 - (1 + cos t) / (2 t sin t), with cos and sin straight from the matrix
+    d = torch.where(
+        small.unsqueeze(dim),
+        1 / 12 + theta_sq / 720 + theta_sq**2 / 30240,
+        (1 / (theta * theta) - (1 + cos) / (2 * theta * sin)).unsqueeze(dim),
+    )
+    eye, k, outer = _basis(phi, dim)
+    return phi, (1 - d * theta_sq) * eye + 0.5 * k + d * outer

@@ -165,8 +165,8 @@ def test_reporting_selected_samples_equals_selecting_from_all(at):
     some = preintegrate(g, a, DT, GYRO_DENSITY, ACC_DENSITY, at=at)
     index = torch.arange(100)[at].reshape(-1)
     assert some.cov.shape == (2, len(index), 9, 9)
-    for field in ("rot", "vel", "pos", "dt", "cov"):
-        assert torch.equal(getattr(some, field), getattr(full, field)[:, index]), field
+    for field in ("rot", "vel", "pos", "dt", "cov"):  # equal to round-off (SIMD vs scalar lanes may differ)
+        assert rel_err(getattr(some, field), getattr(full, field)[:, index].numpy()) < 1e-14, field
 
 
 @pytest.mark.parametrize("at", [100, [0, 200], slice(100, None), "last"])

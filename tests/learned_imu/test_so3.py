@@ -71,3 +71,30 @@ def test_quaternion_is_wxyz_with_nonnegative_w():
     assert np.allclose(q.numpy(), [np.cos(0.25), np.sin(0.25), 0.0, 0.0])
     many = so3.matrix_to_quaternion_wxyz(so3.exp(torch.tensor(rotation_vectors(2))))
     assert (many[:, 0] >= 0).all() and torch.allclose(many.norm(dim=-1), torch.ones(len(many), dtype=many.dtype))
+
+
+def test_fused_exp_and_right_jacobian_equal_separate_functions():
+    phi = torch.tensor(rotation_vectors(3))
+    for dim, x in ((-1, phi), (-2, phi.mT.contiguous())):
+        rot, jac = so3.exp_and_right_jacobian(x, dim=dim)
+        assert torch.allclose(rot, so3.exp(x, dim=dim), rtol=0, atol=1e-15)
+        assert torch.allclose(jac, so3.right_jacobian(x, dim=dim), rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("near_pi", [False, True])
+def test_fused_log_and_inverse_jacobian_equal_separate_functions(near_pi):
+    phi = rotation_vectors(4)
+    if not near_pi:
+        phi = phi[np.linalg.norm(phi, axis=1) < 2.8]  # the skew-part route
+    rot = so3.exp(torch.tensor(phi))
+    for dim, r in ((-1, rot), (-2, rot.movedim(-3, -1).contiguous())):
+        log, jinv = so3.log_and_right_jacobian_inv(r, dim=dim)
+        ref = so3.log(r, dim=dim)
+        assert (log - ref).abs().max() < 1e-12
+        assert (jinv - so3.right_jacobian_inv(ref, dim=dim)).abs().max() < 1e-9
+
+
+def test_gradcheck_fused_log_and_inverse_jacobian():
+    for phi in (np.array([1e-4, -2e-5, 3e-5]), np.array([0.3, -1.2, 0.7])):
+        rot = so3.exp(torch.tensor(phi)).requires_grad_(True)
+        assert torch.autograd.gradcheck(lambda r: so3.log_and_right_jacobian_inv(r), (rot,))

@@ -1,0 +1,71 @@
+"""GPS position factor with an antenna lever arm, on a ``gtsam.Pose3`` key (``X(i)``).
+
+Measurement: the antenna position in the navigation (world) frame, m. Lever arm: the antenna's position in the
+body (IMU) frame, m. Error ``t + R l - z`` (world frame, m), so with ``l = 0`` the error and its Jacobian equal
+``gtsam.GPSFactor``'s. Noise is Gaussian with a per-axis standard deviation (m, not a variance), optionally
+wrapped in a robust M-estimator (Huber or Cauchy) to survive outlier fixes.
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+ROBUST_LOSSES = ("huber", "cauchy")
+
+
+def gps_noise(sigma_m, robust: str | None = None, robust_k: float = 1.345) -> gtsam.noiseModel.Base:
+    """Diagonal Gaussian noise with standard deviations ``sigma_m`` (float or (3,), m), optionally robust.
+
+    ``robust_k`` is the M-estimator's threshold on the whitened error (1.345 is Huber's 95 % efficiency value).
+    """
+    sigma = np.broadcast_to(np.asarray(sigma_m, dtype=float), (3,)).copy()
+    if not np.all(np.isfinite(sigma)) or np.any(sigma <= 0):
+        raise ValueError(f"GPS sigma must be positive and finite (m), got {sigma_m!r}")
+    gaussian = gtsam.noiseModel.Diagonal.Sigmas(sigma)
+    if robust is None:
+        return gaussian
+    if robust not in ROBUST_LOSSES:
+        raise ValueError(f"unknown robust loss {robust!r}; known: {', '.join(ROBUST_LOSSES)}")
+    estimator = (gtsam.noiseModel.mEstimator.Huber if robust == "huber" else gtsam.noiseModel.mEstimator.Cauchy)
+    return gtsam.noiseModel.Robust.Create(estimator.Create(robust_k), gaussian)
+
+
+class GpsFactor(gtsam.CustomFactor):
+    """Antenna position measured in the world frame, on pose key ``key``.
+
+    Args:
+        key: the ``gtsam.Pose3`` key, e.g. ``gtsam.symbol_shorthand.X(i)``.
+        position_m: (3,) measured antenna position, world frame, m.
+        noise: a gtsam noise model of dimension 3 (see ``gps_noise``).
+        lever_arm_m: (3,) antenna position in the body (IMU) frame, m.
+    """
+
+    def __init__(self, key: int, position_m, noise: gtsam.noiseModel.Base, lever_arm_m=(0.0, 0.0, 0.0)):
+        self.position_m = _vector3("position_m", position_m)
+        self.lever_arm_m = _vector3("lever_arm_m", lever_arm_m)
+        if noise.dim() != 3:
+            raise ValueError(f"GpsFactor noise must have dimension 3, got {noise.dim()}")
+        self._lever_hat = np.array(
+            [
+                [0.0, -self.lever_arm_m[2], self.lever_arm_m[1]],
+                [self.lever_arm_m[2], 0.0, -self.lever_arm_m[0]],
+                [-self.lever_arm_m[1], self.lever_arm_m[0], 0.0],
+            ]
+        )
+        super().__init__(noise, [key], self._evaluate)
+
+    def _evaluate(self, this: gtsam.CustomFactor, values: gtsam.Values, jacobians: list | None) -> np.ndarray:
+        pose = values.atPose3(this.keys()[0])
+        rot = pose.rotation().matrix()
+        if jacobians is not None:
+            # Pose3 tangent [omega, v]: d(t + R l)/d omega = -R [l]x, d/dv = R
+            jacobians[0] = np.hstack([-rot @ self._lever_hat, rot])
+        return pose.translation() + rot @ self.lever_arm_m - self.position_m
+
+
+def _vector3(name: str, value) -> np.ndarray:
+    out = np.asarray(value, dtype=float)
+    if out.shape != (3,) or not np.all(np.isfinite(out)):
+        raise ValueError(f"GpsFactor {name} must be 3 finite numbers (m), got {value!r}")
+    return out

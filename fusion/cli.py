@@ -7,6 +7,11 @@ import typer
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="AirIMU: learned IMU factors for GTSAM.")
 
 
+@app.callback()
+def _root() -> None:
+    """AirIMU: learned IMU correction and uncertainty, preintegrated into GTSAM factors."""
+
+
 @app.command()
 def demo(
     duration: float = typer.Option(60.0, help="length of the simulated sequence, s"),

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 
 def test_help_lists_commands_without_importing_torch_gtsam_or_rerun():
@@ -19,3 +21,13 @@ def test_help_lists_commands_without_importing_torch_gtsam_or_rerun():
     out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout
     assert "demo" in out
     assert "HEAVY: []" in out
+
+
+def test_demo_runs_through_the_console_script():
+    script = Path(sys.executable).with_name("airimu")
+    env = {**os.environ, "COLUMNS": "200"}  # no line wrapping by rich
+    run = subprocess.run([str(script), "demo", "--duration", "6"], check=True, capture_output=True, text=True, env=env)
+    out = run.stdout
+    assert "windows of 1 s preintegrated with covariance" in out
+    ratio = float(out.split("PreintegratedImuMeasurements (first window): ")[1].split()[0])
+    assert ratio < 0.01  # our covariance equals GTSAM's within 1 %

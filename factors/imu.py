@@ -1,0 +1,105 @@
+"""Learned preintegration factor: GTSAM's ``ImuFactor`` residual with a measurement from the learned model.
+
+Keys as ``gtsam.ImuFactor`` uses them: ``X(i)`` (``Pose3``), ``V(i)`` (world-frame velocity, ``Vector3``),
+``X(j)``, ``V(j)``. Measurement: the preintegrated deltas from i to j -- ``delta_rot`` (3x3, IMU frame at j to
+IMU frame at i), ``delta_pos`` and ``delta_vel`` (m, m/s, IMU frame at i), elapsed ``dt`` (s) -- and their 9x9
+covariance in GTSAM's tangent order [rotation, position, velocity] (``preintMeasCov()``'s convention; what
+``learned_imu.preintegrate`` returns). Gravity is the world-frame vector (default ``[0, 0, -9.81]``).
+
+Residual, exactly GTSAM 4.3's ``ImuFactor`` with zero bias: predict the state at j from the state at i,
+``R = R_i dR``, ``p = p_i + v_i dt + g dt^2 / 2 + R_i dp``, ``v = v_i + g dt + R_i dv``, then
+``e = NavState.Logmap(X_j^-1 * predicted)`` in the Lie group SE_2(3). Jacobians are analytic: the chain of the
+prediction's derivative and SE_2(3)'s ``Logmap`` Jacobian (GTSAM's closed form, computed in C++).
+Noise, again as GTSAM 4.3 (``residualCovariance()``): the measurement covariance mapped from the tangent chart
+to the residual's chart, ``T cov T^T`` with ``T = blockdiag(Jr(Log dR), dR^T, dR^T)``.
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+
+class LearnedImuFactor(gtsam.CustomFactor):
+    """IMU factor between (X(i), V(i)) and (X(j), V(j)) with a learned measurement and covariance."""
+
+    def __init__(
+        self,
+        pose_i: int,
+        vel_i: int,
+        pose_j: int,
+        vel_j: int,
+        delta_rot,
+        delta_pos,
+        delta_vel,
+        dt: float,
+        cov,
+        gravity=(0.0, 0.0, -9.81),
+    ):
+        self.delta_rot = _matrix("delta_rot", delta_rot, (3, 3))
+        self.delta_pos = _matrix("delta_pos", delta_pos, (3,))
+        self.delta_vel = _matrix("delta_vel", delta_vel, (3,))
+        self.gravity = _matrix("gravity", gravity, (3,))
+        self.dt = float(dt)
+        if not np.isfinite(self.dt) or self.dt <= 0:
+            raise ValueError(f"LearnedImuFactor: dt must be positive and finite (s), got {dt!r}")
+        if np.abs(self.delta_rot.T @ self.delta_rot - np.eye(3)).max() > 1e-5:
+            raise ValueError("LearnedImuFactor: delta_rot is not a rotation matrix")
+        cov = _matrix("cov", cov, (9, 9))
+        if np.abs(cov - cov.T).max() > 1e-9 * np.abs(cov).max() or np.linalg.eigvalsh(0.5 * (cov + cov.T)).min() <= 0:
+            raise ValueError("LearnedImuFactor: cov must be symmetric positive definite (9x9)")
+        # Prediction terms that do not depend on the states.
+        self._gravity_pos = 0.5 * self.gravity * self.dt**2
+        self._gravity_vel = self.gravity * self.dt
+        self._rot_t = self.delta_rot.T
+        self._pos_hat = _hat(self.delta_pos)
+        self._vel_hat = _hat(self.delta_vel)
+        to_residual = np.zeros((9, 9))
+        to_residual[0:3, 0:3] = gtsam.SO3.ExpmapDerivative(gtsam.Rot3.Logmap(gtsam.Rot3(self.delta_rot)))
+        to_residual[3:6, 3:6] = self.delta_rot.T
+        to_residual[6:9, 6:9] = self.delta_rot.T
+        noise = gtsam.noiseModel.Gaussian.Covariance(to_residual @ cov @ to_residual.T)
+        super().__init__(noise, [pose_i, vel_i, pose_j, vel_j], self._evaluate)
+
+    def _evaluate(self, this: gtsam.CustomFactor, values: gtsam.Values, jacobians: list | None) -> np.ndarray:
+        k = this.keys()
+        pose_i, pose_j = values.atPose3(k[0]), values.atPose3(k[2])
+        v_i, v_j = values.atVector(k[1]), values.atVector(k[3])
+        r_i, r_j = pose_i.rotation().matrix(), pose_j.rotation().matrix()
+        # 1. predict the state at j (world frame)
+        r_p = r_i @ self.delta_rot
+        p_p = pose_i.translation() + v_i * self.dt + self._gravity_pos + r_i @ self.delta_pos
+        v_p = v_i + self._gravity_vel + r_i @ self.delta_vel
+        # 2. error in SE_2(3): Log(X_j^-1 * predicted)
+        between = gtsam.NavState(gtsam.Rot3(r_j.T @ r_p), r_j.T @ (p_p - pose_j.translation()), r_j.T @ (v_p - v_j))
+        if jacobians is None:
+            return gtsam.NavState.Logmap(between)
+        d_log = np.zeros((9, 9), order="F")
+        error = gtsam.NavState.Logmap(between, d_log)
+        # 3. Jacobians: right perturbations of the predicted state (for X(i), V(i)) and of X(j), V(j)
+        d_pred_pose_i = np.zeros((9, 6))
+        d_pred_pose_i[0:3, 0:3] = self._rot_t
+        d_pred_pose_i[3:6, 0:3] = -self._rot_t @ self._pos_hat
+        d_pred_pose_i[3:6, 3:6] = self._rot_t
+        d_pred_pose_i[6:9, 0:3] = -self._rot_t @ self._vel_hat
+        r_p_t = r_p.T
+        d_pred_vel_i = np.vstack([np.zeros((3, 3)), self.dt * r_p_t, r_p_t])
+        minus_ad = -(d_log @ between.inverse().AdjointMap())
+        jacobians[0] = d_log @ d_pred_pose_i
+        jacobians[1] = d_log @ d_pred_vel_i
+        jacobians[2] = minus_ad[:, 0:6]
+        jacobians[3] = minus_ad[:, 6:9] @ r_j.T
+        return error
+
+
+def _hat(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _matrix(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
+    out = np.asarray(value, dtype=float)
+    if out.shape != shape:
+        raise ValueError(f"LearnedImuFactor: {name} must have shape {shape}, got {out.shape}")
+    if not np.all(np.isfinite(out)):
+        raise ValueError(f"LearnedImuFactor: {name} contains NaN or Inf")
+    return out

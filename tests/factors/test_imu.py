@@ -1,0 +1,159 @@
+"""LearnedImuFactor against gtsam.ImuFactor (error and linearisation) and numerical derivatives in float64."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pytest
+from gtsam.symbol_shorthand import B, V, X
+
+from factors.imu import LearnedImuFactor
+
+GRAVITY = 9.81
+
+
+def gtsam_pim(seed: int, n: int = 200, dt: float = 0.005) -> gtsam.PreintegratedImuMeasurements:
+    rng = np.random.default_rng(seed)
+    params = gtsam.PreintegrationParams.MakeSharedU(GRAVITY)
+    params.setGyroscopeCovariance(np.eye(3) * 1e-4)
+    params.setAccelerometerCovariance(np.eye(3) * 1e-3)
+    params.setIntegrationCovariance(np.eye(3) * 1e-8)
+    pim = gtsam.PreintegratedImuMeasurements(params, gtsam.imuBias.ConstantBias())
+    for _ in range(n):
+        pim.integrateMeasurement(rng.normal(0, 2, 3) + [0, 0, GRAVITY], rng.uniform(-1.5, 1.5, 3), dt)
+    return pim
+
+
+def factor_from_pim(pim) -> LearnedImuFactor:
+    return LearnedImuFactor(
+        X(0),
+        V(0),
+        X(1),
+        V(1),
+        pim.deltaRij().matrix(),
+        pim.deltaPij(),
+        pim.deltaVij(),
+        pim.deltaTij(),
+        pim.preintMeasCov(),
+        gravity=[0.0, 0.0, -GRAVITY],
+    )
+
+
+def random_values(rng: np.random.Generator, pim=None) -> gtsam.Values:
+    """Random states; with ``pim``, the state at j is near the prediction (a realistic linearisation point)."""
+    values = gtsam.Values()
+    pose_i = gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3)), rng.normal(size=3) * 5)
+    vel_i = rng.normal(size=3)
+    values.insert(X(0), pose_i)
+    values.insert(V(0), vel_i)
+    if pim is None:
+        values.insert(X(1), gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3)), rng.normal(size=3) * 5))
+        values.insert(V(1), rng.normal(size=3))
+    else:
+        pred = pim.predict(gtsam.NavState(pose_i, vel_i), gtsam.imuBias.ConstantBias())
+        values.insert(X(1), pred.pose().retract(rng.normal(size=6) * 0.05))
+        values.insert(V(1), pred.velocity() + rng.normal(size=3) * 0.05)
+    values.insert(B(0), gtsam.imuBias.ConstantBias())
+    return values
+
+
+def rel(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.abs(a - b).max() / max(np.abs(b).max(), 1e-300))
+
+
+@pytest.mark.parametrize("near_prediction", [False, True])
+def test_error_and_linearisation_equal_gtsam_imu_factor(near_prediction):
+    rng = np.random.default_rng(0)
+    for seed in range(5):
+        pim = gtsam_pim(seed)
+        ours = factor_from_pim(pim)
+        ref = gtsam.ImuFactor(X(0), V(0), X(1), V(1), B(0), pim)
+        values = random_values(rng, pim if near_prediction else None)
+        assert rel(ours.unwhitenedError(values), ref.unwhitenedError(values)) < 1e-6
+        assert ours.error(values) == pytest.approx(ref.error(values), rel=1e-6)
+        a_ours, b_ours = ours.linearize(values).jacobian()
+        a_ref, b_ref = ref.linearize(values).jacobian()
+        assert rel(a_ours, a_ref[:, :18]) < 1e-6  # gtsam's last 6 columns are the bias
+        assert rel(b_ours, b_ref) < 1e-6
+
+
+def test_jacobians_equal_numerical_derivatives():
+    rng = np.random.default_rng(1)
+    pim = gtsam_pim(7)
+    factor = factor_from_pim(pim)
+    values = random_values(rng)
+    jacobians = [np.zeros((9, 6)), np.zeros((9, 3)), np.zeros((9, 6)), np.zeros((9, 3))]
+    factor._evaluate(factor, values, jacobians)
+    eps = 1e-6
+    for index, (key, dim) in enumerate(((X(0), 6), (V(0), 3), (X(1), 6), (V(1), 3))):
+        numeric = np.zeros((9, dim))
+        for c in range(dim):
+            d = np.zeros(dim)
+            d[c] = eps
+            plus, minus = gtsam.Values(values), gtsam.Values(values)
+            if dim == 6:
+                plus.update(key, values.atPose3(key).retract(d))
+                minus.update(key, values.atPose3(key).retract(-d))
+            else:
+                plus.update(key, values.atVector(key) + d)
+                minus.update(key, values.atVector(key) - d)
+            numeric[:, c] = (factor.unwhitenedError(plus) - factor.unwhitenedError(minus)) / (2 * eps)
+        assert np.abs(jacobians[index] - numeric).max() < 1e-6 * max(1.0, np.abs(numeric).max()), index
+
+
+def test_swapping_into_a_graph_gives_the_same_solution():
+    """A small IMU chain with a pose prior: LM with ours and with gtsam.ImuFactor lands on the same states."""
+    rng = np.random.default_rng(2)
+    pims = [gtsam_pim(s, n=100) for s in range(3)]
+    solutions = []
+    for use_ours in (True, False):
+        graph = gtsam.NonlinearFactorGraph()
+        graph.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 1e-3)))
+        graph.add(gtsam.PriorFactorVector(V(0), np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 1e-3)))
+        graph.add(
+            gtsam.PriorFactorConstantBias(B(0), gtsam.imuBias.ConstantBias(), gtsam.noiseModel.Isotropic.Sigma(6, 1e-9))
+        )
+        initial = gtsam.Values()
+        initial.insert(B(0), gtsam.imuBias.ConstantBias())
+        for i, pim in enumerate(pims):
+            if use_ours:
+                f = factor_from_pim(pim)
+                graph.add(
+                    LearnedImuFactor(
+                        X(i),
+                        V(i),
+                        X(i + 1),
+                        V(i + 1),
+                        f.delta_rot,
+                        f.delta_pos,
+                        f.delta_vel,
+                        f.dt,
+                        pim.preintMeasCov(),
+                        gravity=f.gravity,
+                    )
+                )
+            else:
+                graph.add(gtsam.ImuFactor(X(i), V(i), X(i + 1), V(i + 1), B(0), pim))
+        for i in range(len(pims) + 1):
+            initial.insert(X(i), gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3) * 0.01), rng.normal(size=3)))
+            initial.insert(V(i), rng.normal(size=3))
+        result = gtsam.LevenbergMarquardtOptimizer(graph, initial).optimize()
+        solutions.append([result.atPose3(X(i)).translation() for i in range(len(pims) + 1)])
+    np.testing.assert_allclose(solutions[0], solutions[1], atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("cov", -np.eye(9), "positive definite"),
+        ("cov", np.eye(8), "shape"),
+        ("delta_pos", [np.nan, 0.0, 0.0], "NaN"),
+        ("delta_rot", np.eye(3) * 2, "rotation"),
+        ("dt", 0.0, "dt must be positive"),
+    ],
+)
+def test_bad_measurement_raises(field, value, message):
+    args = {"delta_rot": np.eye(3), "delta_pos": np.zeros(3), "delta_vel": np.zeros(3), "dt": 0.1, "cov": np.eye(9)}
+    args[field] = value
+    with pytest.raises(ValueError, match=message):
+        LearnedImuFactor(X(0), V(0), X(1), V(1), **args)

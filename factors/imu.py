@@ -49,11 +49,16 @@ class LearnedImuFactor(gtsam.CustomFactor):
         if np.abs(cov - cov.T).max() > 1e-9 * np.abs(cov).max() or np.linalg.eigvalsh(0.5 * (cov + cov.T)).min() <= 0:
             raise ValueError("LearnedImuFactor: cov must be symmetric positive definite (9x9)")
         # Prediction terms that do not depend on the states.
+        self._delta_rot3 = gtsam.Rot3(self.delta_rot)
         self._gravity_pos = 0.5 * self.gravity * self.dt**2
         self._gravity_vel = self.gravity * self.dt
-        self._rot_t = self.delta_rot.T
-        self._pos_hat = _hat(self.delta_pos)
-        self._vel_hat = _hat(self.delta_vel)
+        rot_t = self.delta_rot.T
+        # right perturbation of the prediction w.r.t. X(i)'s tangent [omega, t]: constant for the factor
+        self._d_pred_pose_i = np.zeros((9, 6))
+        self._d_pred_pose_i[0:3, 0:3] = rot_t
+        self._d_pred_pose_i[3:6, 0:3] = -rot_t @ _hat(self.delta_pos)
+        self._d_pred_pose_i[3:6, 3:6] = rot_t
+        self._d_pred_pose_i[6:9, 0:3] = -rot_t @ _hat(self.delta_vel)
         to_residual = np.zeros((9, 9))
         to_residual[0:3, 0:3] = gtsam.SO3.ExpmapDerivative(gtsam.Rot3.Logmap(gtsam.Rot3(self.delta_rot)))
         to_residual[3:6, 3:6] = self.delta_rot.T
@@ -65,30 +70,27 @@ class LearnedImuFactor(gtsam.CustomFactor):
         k = this.keys()
         pose_i, pose_j = values.atPose3(k[0]), values.atPose3(k[2])
         v_i, v_j = values.atVector(k[1]), values.atVector(k[3])
-        r_i, r_j = pose_i.rotation().matrix(), pose_j.rotation().matrix()
+        rot_i, rot_j = pose_i.rotation(), pose_j.rotation()
+        r_i = rot_i.matrix()
         # 1. predict the state at j (world frame)
-        r_p = r_i @ self.delta_rot
+        rot_p = rot_i.compose(self._delta_rot3)
         p_p = pose_i.translation() + v_i * self.dt + self._gravity_pos + r_i @ self.delta_pos
         v_p = v_i + self._gravity_vel + r_i @ self.delta_vel
         # 2. error in SE_2(3): Log(X_j^-1 * predicted)
-        between = gtsam.NavState(gtsam.Rot3(r_j.T @ r_p), r_j.T @ (p_p - pose_j.translation()), r_j.T @ (v_p - v_j))
+        between = gtsam.NavState(
+            rot_j.between(rot_p), rot_j.unrotate(p_p - pose_j.translation()), rot_j.unrotate(v_p - v_j)
+        )
         if jacobians is None:
             return gtsam.NavState.Logmap(between)
         d_log = np.zeros((9, 9), order="F")
         error = gtsam.NavState.Logmap(between, d_log)
         # 3. Jacobians: right perturbations of the predicted state (for X(i), V(i)) and of X(j), V(j)
-        d_pred_pose_i = np.zeros((9, 6))
-        d_pred_pose_i[0:3, 0:3] = self._rot_t
-        d_pred_pose_i[3:6, 0:3] = -self._rot_t @ self._pos_hat
-        d_pred_pose_i[3:6, 3:6] = self._rot_t
-        d_pred_pose_i[6:9, 0:3] = -self._rot_t @ self._vel_hat
-        r_p_t = r_p.T
-        d_pred_vel_i = np.vstack([np.zeros((3, 3)), self.dt * r_p_t, r_p_t])
+        r_p_t = rot_p.matrix().T
         minus_ad = -(d_log @ between.inverse().AdjointMap())
-        jacobians[0] = d_log @ d_pred_pose_i
-        jacobians[1] = d_log @ d_pred_vel_i
+        jacobians[0] = d_log @ self._d_pred_pose_i
+        jacobians[1] = d_log[:, 3:6] @ (self.dt * r_p_t) + d_log[:, 6:9] @ r_p_t
         jacobians[2] = minus_ad[:, 0:6]
-        jacobians[3] = minus_ad[:, 6:9] @ r_j.T
+        jacobians[3] = minus_ad[:, 6:9] @ rot_j.matrix().T
         return error
 
 

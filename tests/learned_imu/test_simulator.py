@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -40,9 +42,17 @@ def test_profiles_have_their_character():
     assert up[2] == pytest.approx(9.81, abs=0.1)  # specific force is +g up on average
 
 
+def only(**fields) -> ImuErrorModel:
+    """An error model with every effect off except ``fields``."""
+    return ImuErrorModel(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, **fields)
+
+
 def test_white_noise_and_bias_match_the_grade():
-    model = ImuErrorModel.from_grade("industrial")
-    sim = simulate_with_truth("drone", duration_s=200.0, rate_hz=200.0, grade="industrial", seed=2)
+    grade = ImuErrorModel.from_grade("industrial")
+    model = replace(  # white noise and biases only: the other effects would leak into the residual
+        grade, gyro_scale_misalignment=0.0, acc_scale_misalignment=0.0, gyro_g_sensitivity_rad_s_per_m_s2=0.0
+    )
+    sim = simulate_with_truth("drone", duration_s=200.0, rate_hz=200.0, error_model=model, seed=2)
     noise = sim.sequence.gyro - sim.clean_gyro - sim.gyro_bias
     expected = model.gyro_noise_density_rad_s_sqrthz * np.sqrt(200.0)
     assert noise.std(axis=0) == pytest.approx(np.full(3, expected), rel=0.02)
@@ -71,3 +81,46 @@ def test_grades_are_ordered_and_unknown_names_raise():
         ImuErrorModel.from_grade("military")
     with pytest.raises(ValueError, match="known profiles"):
         simulate("boat")
+
+
+def residual(fields: dict, duration_s: float = 60.0, seed: int = 7):
+    sim = simulate_with_truth("handheld", duration_s=duration_s, error_model=only(**fields), seed=seed)
+    return sim, sim.sequence.gyro - sim.clean_gyro, sim.sequence.acc - sim.clean_acc
+
+
+def test_scale_misalignment_and_g_sensitivity_are_linear_in_the_true_signal():
+    sim, gyro_err, acc_err = residual({"gyro_scale_misalignment": 1e-2, "acc_scale_misalignment": 1e-2})
+    gyro_m, *_ = np.linalg.lstsq(sim.clean_gyro, sim.sequence.gyro, rcond=None)
+    assert np.abs(sim.clean_gyro @ gyro_m - sim.sequence.gyro).max() < 1e-12  # exactly M @ clean
+    assert 1e-3 < np.abs(gyro_m.T - np.eye(3)).max() < 0.05
+    assert np.abs(acc_err).max() > 1e-2
+    sim, gyro_err, _ = residual({"gyro_g_sensitivity_rad_s_per_m_s2": 1e-3})
+    g_sens, *_ = np.linalg.lstsq(sim.clean_acc, gyro_err, rcond=None)
+    assert np.abs(sim.clean_acc @ g_sens - gyro_err).max() < 1e-12 and np.abs(g_sens).max() > 1e-4
+
+
+def test_bias_instability_is_a_stationary_gauss_markov_process():
+    sim, gyro_err, _ = residual({"gyro_bias_instability_rad_s": 1e-3, "bias_correlation_time_s": 1.0}, 300.0)
+    assert gyro_err.std() == pytest.approx(1e-3, rel=0.15)
+    lag = 200  # one correlation time at 200 Hz
+    corr = np.mean([np.corrcoef(gyro_err[:-lag, i], gyro_err[lag:, i])[0, 1] for i in range(3)])
+    assert corr == pytest.approx(np.exp(-1.0), abs=0.1)
+
+
+def test_temperature_drift_is_slow_and_bounded():
+    sim, _, acc_err = residual({"acc_temperature_drift_m_s2": 0.05, "temperature_period_s": 60.0})
+    assert np.abs(acc_err).max() == pytest.approx(0.05, rel=0.05)
+    assert np.abs(np.diff(acc_err, axis=0)).max() < 0.05 * 2 * np.pi / 60.0 * 0.005 * 1.01  # max slope x dt
+
+
+def test_vibration_comes_in_bursts_at_its_frequency():
+    sim, _, acc_err = residual({"vibration_acc_m_s2": 1.0, "vibration_duty": 0.2, "vibration_hz": 37.0}, 120.0)
+    shaking = np.abs(acc_err).max(axis=1) > 0
+    assert 0.1 < shaking.mean() < 0.3
+    spectrum = np.abs(np.fft.rfft(acc_err[:, 0]))
+    assert np.fft.rfftfreq(len(acc_err), 0.005)[spectrum.argmax()] == pytest.approx(37.0, abs=0.1)
+
+
+def test_two_hour_sequence_fits_in_memory():
+    seq = simulate("car", duration_s=7200.0, grade="consumer", seed=1)
+    assert len(seq) == 1_440_000 and np.isfinite(seq.acc).all()

@@ -1,7 +1,7 @@
-"""BROAD (Berlin Robust Orientation Estimation Assessment Dataset) trials, MATLAB ``.mat`` files.
+"""BROAD (Berlin Robust Orientation Estimation Assessment Dataset) trials, ``.mat`` or ``.hdf5`` files.
 
-Only ``.mat`` (MATLAB v5, read with ``scipy.io.loadmat``) is supported: the ``.hdf5`` copies hold the same data
-but need h5py, which this project does not depend on; such a path raises a DataError saying so.
+``.mat`` (MATLAB v5) is read with ``scipy.io.loadmat``, ``.hdf5``/``.h5`` with h5py: both copies hold the same
+arrays under the same names (``sampling_rate`` may be a dataset or a file attribute in the HDF5 copy).
 
 Conventions (from the dataset's ``info`` text and README, confirmed by the frame self-check on all 17 trials):
 
@@ -41,30 +41,18 @@ def read_broad(
     check_units: bool = True,
     vel_window_s: float = VEL_WINDOW_S,
 ) -> ImuSequence | list[ImuSequence]:
-    """Read one BROAD trial ``.mat`` file (see the module docstring for units and frames).
+    """Read one BROAD trial, ``.mat`` or ``.hdf5`` (see the module docstring for units and frames).
 
     Args:
-        path: the ``.mat`` file.
+        path: the ``.mat`` or ``.hdf5`` file.
         ground_truth: False to ignore the optical reference.
         gravity: magnitude of gravity, m/s^2 (world ENU z-up, gravity along -z).
         on_gap, crop_to_gt, check_frame, check_units, vel_window_s: see ``_assemble.build_sequence``.
     """
     path = Path(path)
-    if path.suffix.lower() in (".hdf5", ".h5"):
-        raise DataError(
-            path,
-            "path",
-            "BROAD .hdf5 files are not supported (they need h5py); use the .mat copy "
-            "of the same trial (data_mat/ in the BROAD repository)",
-        )
     if not path.is_file():
         raise DataError(path, "path", "file not found")
-    import scipy.io
-
-    try:
-        mat = scipy.io.loadmat(path, variable_names=[*FIELDS, "sampling_rate"])
-    except (ValueError, OSError, NotImplementedError) as err:
-        raise DataError(path, "path", f"not a readable MATLAB v5 file: {err}") from err
+    mat = _load_hdf5(path) if path.suffix.lower() in (".hdf5", ".h5") else _load_mat(path)
     arrays = {name: _field(mat, name, width, path) for name, width in FIELDS.items()}
     n = arrays["imu_gyr"].shape[0]
     for name, value in arrays.items():
@@ -93,6 +81,28 @@ def read_broad(
         check_units=check_units,
         vel_window_s=vel_window_s,
     )
+
+
+def _load_mat(path: Path) -> dict:
+    import scipy.io
+
+    try:
+        return scipy.io.loadmat(path, variable_names=[*FIELDS, "sampling_rate"])
+    except (ValueError, OSError, NotImplementedError) as err:
+        raise DataError(path, "path", f"not a readable MATLAB v5 file: {err}") from err
+
+
+def _load_hdf5(path: Path) -> dict:
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            out = {name: f[name][()] for name in [*FIELDS, "sampling_rate"] if name in f}
+            if "sampling_rate" not in out and "sampling_rate" in f.attrs:
+                out["sampling_rate"] = np.asarray(f.attrs["sampling_rate"])
+            return out
+    except OSError as err:
+        raise DataError(path, "path", f"not a readable HDF5 file: {err}") from err
 
 
 def _field(mat: dict, name: str, width: int, path: Path) -> np.ndarray:

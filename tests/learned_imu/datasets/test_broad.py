@@ -73,9 +73,34 @@ def test_translation_trial_velocity_from_mocap_agrees_with_the_imu(shared_data):
     assert np.sqrt((err**2).mean()) < 0.25 * scale
 
 
-def test_hdf5_is_refused_with_a_reason(tmp_path):
-    with pytest.raises(DataError, match="h5py"):
-        read_broad(tmp_path / "02_undisturbed_slow_rotation_B.hdf5")
+@pytest.mark.parametrize("rate_as_attribute", [False, True])
+def test_hdf5_copy_reads_the_same_as_the_mat_file(shared_data, tmp_path, rate_as_attribute):
+    import h5py
+
+    mat_path = shared_data / "broad" / "02_undisturbed_slow_rotation_B.mat"
+    mat = scipy.io.loadmat(mat_path)
+    h5_path = tmp_path / "02_undisturbed_slow_rotation_B.hdf5"
+    with h5py.File(h5_path, "w") as f:
+        for name in ("imu_gyr", "imu_acc", "opt_quat", "opt_pos"):
+            f.create_dataset(name, data=mat[name])
+        rate = float(np.asarray(mat["sampling_rate"]).ravel()[0])
+        if rate_as_attribute:
+            f.attrs["sampling_rate"] = rate
+        else:
+            f.create_dataset("sampling_rate", data=rate)
+    from_mat, from_h5 = read_broad(mat_path), read_broad(h5_path)
+    assert len(from_h5) == len(from_mat) > 1000
+    for field in ("t", "gyro", "acc"):
+        np.testing.assert_array_equal(getattr(from_h5, field), getattr(from_mat, field))
+    np.testing.assert_array_equal(from_h5.gt.rot, from_mat.gt.rot)
+    np.testing.assert_array_equal(from_h5.gt.valid, from_mat.gt.valid)
+
+
+def test_corrupt_hdf5_names_the_file(tmp_path):
+    bad = tmp_path / "trial.hdf5"
+    bad.write_bytes(b"not an hdf5 file")
+    with pytest.raises(DataError, match="trial.hdf5.*not a readable HDF5 file"):
+        read_broad(bad)
 
 
 def test_missing_field_is_named(shared_data, tmp_path):

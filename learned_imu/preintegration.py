@@ -48,6 +48,11 @@ class Preintegrated:
     pos: torch.Tensor
     dt: torch.Tensor
     cov: torch.Tensor | None = None
+    bias_jacobian: torch.Tensor | None = None
+    """(..., N, 9, 6) derivative of the deltas w.r.t. a bias b = [b_acc (m/s^2), b_gyro (rad/s)] (GTSAM's
+    order) subtracted from the samples, rows [rotation, position, velocity]: to first order the deltas of
+    ``(gyro - b_gyro, acc - b_acc)`` are ``rot Exp(J[:3] b)``, ``pos + J[3:6] b``, ``vel + J[6:] b`` (Forster
+    et al.'s bias correction)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -59,7 +64,7 @@ class NavState:
     pos: torch.Tensor
 
 
-def preintegrate(gyro, acc, dt, gyro_cov=None, acc_cov=None, at=None) -> Preintegrated:
+def preintegrate(gyro, acc, dt, gyro_cov=None, acc_cov=None, at=None, bias_jacobian=False) -> Preintegrated:
     """Preintegrate IMU samples, optionally propagating their noise into a 9x9 covariance per sample.
 
     Args:
@@ -71,6 +76,7 @@ def preintegrate(gyro, acc, dt, gyro_cov=None, acc_cov=None, at=None) -> Preinte
         at: which samples to report, as an index, a slice or a 1-D sequence of indices into N (e.g.
             ``slice(49, None, 50)`` for every 50th, as AirIMU supervises); default every sample. Reporting
             fewer samples skips their covariance chart mapping, the costliest part after the scan.
+        bias_jacobian: also return the deltas' bias Jacobians (``Preintegrated.bias_jacobian``).
 
     Returns:
         ``Preintegrated`` after each reported sample (K of them: shapes (..., K, ...)); ``cov`` only if both
@@ -96,6 +102,7 @@ def preintegrate(gyro, acc, dt, gyro_cov=None, acc_cov=None, at=None) -> Preinte
     cov = None
     if with_cov:
         cov = _propagate_covariance(step_jacobian, h, rot, rot_before, force, gyro_cov, acc_cov, index)
+    jac = _bias_jacobian(step_jacobian, h, rot, rot_before, force, index) if bias_jacobian else None
     if index is not None:
         rot, vel, pos = rot[..., index], vel[..., index], pos[..., index]
     elapsed = torch.cumsum(dt, dim=-1)
@@ -105,6 +112,7 @@ def preintegrate(gyro, acc, dt, gyro_cov=None, acc_cov=None, at=None) -> Preinte
         pos=_samples_first(pos, 1),
         dt=elapsed if index is None else elapsed[..., index],
         cov=None if cov is None else _samples_first(cov, 2),
+        bias_jacobian=None if jac is None else _samples_first(jac, 2),
     )
 
 
@@ -227,6 +235,33 @@ def _propagate_covariance(step_jacobian, h, rot, rot_before, force, gyro_cov, ac
     )
     # cat, not slice assignment: the backward of a slice assignment copies the whole 9x9xN gradient per block
     return torch.cat([torch.cat(row, dim=-2) for row in blocks], dim=-3)
+
+
+def _bias_jacobian(step_jacobian, h, rot, rot_before, force, index) -> torch.Tensor:
+    """(..., 9, 6, K) bias Jacobians after the samples ``index`` (all if None); see ``Preintegrated``.
+
+    A gyro bias change db_g perturbs the start-frame rotation error by ``-C_k db_g`` with
+    ``C_k = sum_{j<=k} dR_{j+1} Jr_j dt_j``; velocity and position follow by cumulative sums like the covariance.
+    """
+
+    def mm(x, y):
+        return so3.matmul(x, y, dim=-2)
+
+    hh = h[..., None, :, :]
+    lever_dt = mm(rot, step_jacobian) * hh
+    c_inc, c_ex = _cumsums(lever_dt)
+    m = -so3.hat(force, dim=-2) * hh  # -[dR_k a_k]x dt
+    dv_acc = -rot_before * hh  # change of each velocity increment per acc bias
+    dv_gyro = -mm(m, c_ex)  # ... per gyro bias, through the rotation error before the sample
+    va_inc, va_ex = _cumsums(dv_acc)
+    vg_inc, vg_ex = _cumsums(dv_gyro)
+    pa_inc = torch.cumsum(hh * (va_ex + 0.5 * dv_acc), dim=-1)
+    pg_inc = torch.cumsum(hh * (vg_ex + 0.5 * dv_gyro), dim=-1)
+    rg = -mm(rot.transpose(-3, -2), c_inc)  # rotation error in the frame after the sample
+    if index is not None:
+        rg, pa_inc, pg_inc, va_inc, vg_inc = (t[..., index] for t in (rg, pa_inc, pg_inc, va_inc, vg_inc))
+    rows = ((torch.zeros_like(rg), rg), (pa_inc, pg_inc), (va_inc, vg_inc))
+    return torch.cat([torch.cat(row, dim=-2) for row in rows], dim=-3)
 
 
 def _cumsums(terms: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -12,6 +12,13 @@ Residual, exactly GTSAM 4.3's ``ImuFactor`` with zero bias: predict the state at
 prediction's derivative and SE_2(3)'s ``Logmap`` Jacobian (GTSAM's closed form, computed in C++).
 Noise, again as GTSAM 4.3 (``residualCovariance()``): the measurement covariance mapped from the tangent chart
 to the residual's chart, ``T cov T^T`` with ``T = blockdiag(Jr(Log dR), dR^T, dR^T)``.
+
+Optional bias key ``B(i)`` (``imuBias.ConstantBias``, [acc, gyro]) with the deltas' ``bias_jacobian`` (9x6, from
+``learned_imu.preintegrate(..., bias_jacobian=True)``): the deltas are corrected to first order,
+``dR Exp(J_rg b_g)``, ``dp + J_p b``, ``dv + J_v b``, like ``gtsam.ImuFactor``/``CombinedImuFactor`` do. Use it when
+the graph keeps bias states (raw or partly corrected IMU, long runs where the bias drifts; tie consecutive biases
+with a ``BetweenFactorConstantBias``). Without it the factor assumes the samples are already unbiased, which is
+what the learned correction provides.
 """
 
 from __future__ import annotations
@@ -35,6 +42,8 @@ class LearnedImuFactor(gtsam.CustomFactor):
         dt: float,
         cov,
         gravity=(0.0, 0.0, -9.81),
+        bias: int | None = None,
+        bias_jacobian=None,
     ):
         self.delta_rot = _matrix("delta_rot", delta_rot, (3, 3))
         self.delta_pos = _matrix("delta_pos", delta_pos, (3,))
@@ -48,23 +57,21 @@ class LearnedImuFactor(gtsam.CustomFactor):
         cov = _matrix("cov", cov, (9, 9))
         if np.abs(cov - cov.T).max() > 1e-9 * np.abs(cov).max() or np.linalg.eigvalsh(0.5 * (cov + cov.T)).min() <= 0:
             raise ValueError("LearnedImuFactor: cov must be symmetric positive definite (9x9)")
+        if (bias is None) != (bias_jacobian is None):
+            raise ValueError("LearnedImuFactor: give both bias (a key) and bias_jacobian (9x6), or neither")
+        self.bias_jacobian = None if bias_jacobian is None else _matrix("bias_jacobian", bias_jacobian, (9, 6))
         # Prediction terms that do not depend on the states.
         self._delta_rot3 = gtsam.Rot3(self.delta_rot)
         self._gravity_pos = 0.5 * self.gravity * self.dt**2
         self._gravity_vel = self.gravity * self.dt
-        rot_t = self.delta_rot.T
-        # right perturbation of the prediction w.r.t. X(i)'s tangent [omega, t]: constant for the factor
-        self._d_pred_pose_i = np.zeros((9, 6))
-        self._d_pred_pose_i[0:3, 0:3] = rot_t
-        self._d_pred_pose_i[3:6, 0:3] = -rot_t @ _hat(self.delta_pos)
-        self._d_pred_pose_i[3:6, 3:6] = rot_t
-        self._d_pred_pose_i[6:9, 0:3] = -rot_t @ _hat(self.delta_vel)
+        self._d_pred_pose_i = _prediction_jacobian(self.delta_rot, self.delta_pos, self.delta_vel)
         to_residual = np.zeros((9, 9))
         to_residual[0:3, 0:3] = gtsam.SO3.ExpmapDerivative(gtsam.Rot3.Logmap(gtsam.Rot3(self.delta_rot)))
         to_residual[3:6, 3:6] = self.delta_rot.T
         to_residual[6:9, 6:9] = self.delta_rot.T
         noise = gtsam.noiseModel.Gaussian.Covariance(to_residual @ cov @ to_residual.T)
-        super().__init__(noise, [pose_i, vel_i, pose_j, vel_j], self._evaluate)
+        keys = [pose_i, vel_i, pose_j, vel_j] + ([] if bias is None else [bias])
+        super().__init__(noise, keys, self._evaluate)
 
     def _evaluate(self, this: gtsam.CustomFactor, values: gtsam.Values, jacobians: list | None) -> np.ndarray:
         k = this.keys()
@@ -72,10 +79,20 @@ class LearnedImuFactor(gtsam.CustomFactor):
         v_i, v_j = values.atVector(k[1]), values.atVector(k[3])
         rot_i, rot_j = pose_i.rotation(), pose_j.rotation()
         r_i = rot_i.matrix()
+        # 0. the deltas, bias-corrected if the factor has a bias key
+        d_rot3, d_pos, d_vel, d_pred_pose_i = self._delta_rot3, self.delta_pos, self.delta_vel, self._d_pred_pose_i
+        if self.bias_jacobian is not None:
+            bias = values.atConstantBias(k[4]).vector()  # [acc, gyro]
+            rot_fix = self.bias_jacobian[0:3, 3:6] @ bias[3:]
+            d_rot3 = d_rot3.compose(gtsam.Rot3.Expmap(rot_fix))
+            d_pos = d_pos + self.bias_jacobian[3:6] @ bias
+            d_vel = d_vel + self.bias_jacobian[6:9] @ bias
+            if jacobians is not None:
+                d_pred_pose_i = _prediction_jacobian(d_rot3.matrix(), d_pos, d_vel)
         # 1. predict the state at j (world frame)
-        rot_p = rot_i.compose(self._delta_rot3)
-        p_p = pose_i.translation() + v_i * self.dt + self._gravity_pos + r_i @ self.delta_pos
-        v_p = v_i + self._gravity_vel + r_i @ self.delta_vel
+        rot_p = rot_i.compose(d_rot3)
+        p_p = pose_i.translation() + v_i * self.dt + self._gravity_pos + r_i @ d_pos
+        v_p = v_i + self._gravity_vel + r_i @ d_vel
         # 2. error in SE_2(3): Log(X_j^-1 * predicted)
         between = gtsam.NavState(
             rot_j.between(rot_p), rot_j.unrotate(p_p - pose_j.translation()), rot_j.unrotate(v_p - v_j)
@@ -87,11 +104,29 @@ class LearnedImuFactor(gtsam.CustomFactor):
         # 3. Jacobians: right perturbations of the predicted state (for X(i), V(i)) and of X(j), V(j)
         r_p_t = rot_p.matrix().T
         minus_ad = -(d_log @ between.inverse().AdjointMap())
-        jacobians[0] = d_log @ self._d_pred_pose_i
+        jacobians[0] = d_log @ d_pred_pose_i
         jacobians[1] = d_log[:, 3:6] @ (self.dt * r_p_t) + d_log[:, 6:9] @ r_p_t
         jacobians[2] = minus_ad[:, 0:6]
         jacobians[3] = minus_ad[:, 6:9] @ rot_j.matrix().T
+        if self.bias_jacobian is not None:  # right perturbation of the prediction per bias change
+            d_pred_bias = np.zeros((9, 6))
+            d_pred_bias[0:3, 3:6] = gtsam.SO3.ExpmapDerivative(rot_fix) @ self.bias_jacobian[0:3, 3:6]
+            corrected_t = d_rot3.matrix().T
+            d_pred_bias[3:6] = corrected_t @ self.bias_jacobian[3:6]
+            d_pred_bias[6:9] = corrected_t @ self.bias_jacobian[6:9]
+            jacobians[4] = d_log @ d_pred_bias
         return error
+
+
+def _prediction_jacobian(delta_rot: np.ndarray, delta_pos: np.ndarray, delta_vel: np.ndarray) -> np.ndarray:
+    """Right perturbation of the predicted state w.r.t. X(i)'s tangent [omega, t] (9x6)."""
+    rot_t = delta_rot.T
+    out = np.zeros((9, 6))
+    out[0:3, 0:3] = rot_t
+    out[3:6, 0:3] = -rot_t @ _hat(delta_pos)
+    out[3:6, 3:6] = rot_t
+    out[6:9, 0:3] = -rot_t @ _hat(delta_vel)
+    return out
 
 
 def _hat(v: np.ndarray) -> np.ndarray:

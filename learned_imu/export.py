@@ -1,0 +1,116 @@
+"""Export: the hand-off from torch to GTSAM, one ``.npz`` file per sequence (no pickle).
+
+Format version 1 (read back, validated, by ``factors.export_file.load_export``):
+
+- ``format_version`` () int; ``name`` () str; ``gravity`` (3,) world-frame gravity vector, m/s^2.
+- per sample (N): ``t`` s; ``gyro`` rad/s and ``acc`` m/s^2 (the samples used: corrected ones when a model
+  ran), IMU frame; ``gyro_cov`` rad^2/s and ``acc_cov`` m^2/s^3, continuous-time noise densities (diagonal).
+- per keyframe (K): ``keyframe_t`` s and ``keyframe_index`` (the sample at which the keyframe's state is taken).
+- per keyframe interval (K - 1): ``delta_rot`` (3, 3), ``delta_pos`` (3,) m, ``delta_vel`` (3,) m/s, ``delta_dt``
+  s: the preintegrated deltas from keyframe k to k + 1; ``delta_cov`` (9, 9) in GTSAM's tangent order
+  [rotation, position, velocity] and noise convention (``preintMeasCov``); ``bias_jacobian`` (9, 6) w.r.t. a
+  bias [acc, gyro] subtracted from the samples.
+- ground truth when known: ``gt_rot`` (N, 3, 3) world <- IMU, ``gt_pos`` (N, 3), ``gt_vel`` (N, 3), ``gt_valid``.
+Files are written to a temporary name and renamed, so a crash never leaves a half-written export.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from learned_imu.preintegration import preintegrate
+from learned_imu.sequence import ImuSequence
+
+FORMAT_VERSION = 1
+
+
+def keyframes_every(sequence: ImuSequence, interval_s: float) -> np.ndarray:
+    """Keyframe sample indices every ``interval_s`` seconds (the last one at or before the last sample)."""
+    step = max(1, int(round(interval_s / float(np.median(sequence.dt)))))
+    return np.arange(0, len(sequence), step)
+
+
+def export_preintegration(
+    path: str | Path,
+    sequence: ImuSequence,
+    keyframe_index: np.ndarray,
+    gyro_cov,
+    acc_cov,
+    gyro: np.ndarray | None = None,
+    acc: np.ndarray | None = None,
+) -> Path:
+    """Preintegrate ``sequence`` between keyframes and write the export (see the module docstring).
+
+    ``gyro``/``acc`` (N, 3) replace the raw samples (a model's corrected output); ``gyro_cov``/``acc_cov`` are
+    densities, (3,) or per sample (N, 3). Intervals of equal length are integrated in one batched call.
+    """
+    n = len(sequence)
+    keyframe_index = np.asarray(keyframe_index, dtype=np.int64)
+    if keyframe_index.ndim != 1 or len(keyframe_index) < 2 or np.any(np.diff(keyframe_index) <= 0):
+        raise ValueError("export: keyframe_index must hold at least two strictly increasing sample indices")
+    if keyframe_index[0] < 0 or keyframe_index[-1] > n - 1:
+        raise ValueError(f"export: keyframe indices must lie in [0, {n - 1}]")
+    gyro = sequence.gyro if gyro is None else np.asarray(gyro, dtype=float)
+    acc = sequence.acc if acc is None else np.asarray(acc, dtype=float)
+    gyro_cov = np.broadcast_to(np.asarray(gyro_cov, dtype=float), (n, 3))
+    acc_cov = np.broadcast_to(np.asarray(acc_cov, dtype=float), (n, 3))
+    dt = sequence.dt
+
+    k = len(keyframe_index) - 1
+    out = {
+        "delta_rot": np.zeros((k, 3, 3)),
+        "delta_pos": np.zeros((k, 3)),
+        "delta_vel": np.zeros((k, 3)),
+        "delta_dt": np.zeros(k),
+        "delta_cov": np.zeros((k, 9, 9)),
+        "bias_jacobian": np.zeros((k, 9, 6)),
+    }
+    lengths = np.diff(keyframe_index)
+    for length in np.unique(lengths):
+        which = np.flatnonzero(lengths == length)
+        take = keyframe_index[which][:, None] + np.arange(length)[None, :]  # samples from keyframe k to k + 1
+        pre = preintegrate(
+            *(torch.as_tensor(x[take]) for x in (gyro, acc, dt, gyro_cov, acc_cov)), at=-1, bias_jacobian=True
+        )
+        out["delta_rot"][which] = pre.rot[:, -1].numpy()
+        out["delta_pos"][which] = pre.pos[:, -1].numpy()
+        out["delta_vel"][which] = pre.vel[:, -1].numpy()
+        out["delta_dt"][which] = pre.dt[:, -1].numpy()
+        out["delta_cov"][which] = pre.cov[:, -1].numpy()
+        out["bias_jacobian"][which] = pre.bias_jacobian[:, -1].numpy()
+
+    arrays = {
+        "format_version": np.array(FORMAT_VERSION),
+        "name": np.array(sequence.name),
+        "gravity": sequence.gravity,
+        "t": sequence.t,
+        "gyro": gyro,
+        "acc": acc,
+        "gyro_cov": np.ascontiguousarray(gyro_cov),
+        "acc_cov": np.ascontiguousarray(acc_cov),
+        "keyframe_t": sequence.t[keyframe_index],
+        "keyframe_index": keyframe_index,
+        **out,
+    }
+    if sequence.gt is not None:
+        gt = sequence.gt
+        arrays.update(gt_rot=gt.rot, gt_pos=gt.pos, gt_vel=gt.vel, gt_valid=gt.valid)
+    return _save_npz_atomic(Path(path), arrays)
+
+
+def _save_npz_atomic(path: Path, arrays: dict) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, **arrays)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path

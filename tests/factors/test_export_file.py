@@ -1,0 +1,115 @@
+"""Export round trip: learned_imu writes, factors reads and validates, the factors solve a graph."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pytest
+import torch
+from gtsam.symbol_shorthand import V, X
+
+from factors import GpsFactor, gps_noise
+from factors.export_file import ExportError, from_export, load_export
+from learned_imu import preintegrate
+from learned_imu.export import export_preintegration, keyframes_every
+from learned_imu.simulator import ImuErrorModel, simulate
+
+WHITE = ImuErrorModel(1.6968e-4, 2.0e-3, 0.0, 0.0, 0.0, 0.0)  # industrial white noise, no bias
+
+
+@pytest.fixture(scope="module")
+def sequence():
+    return simulate("drone", duration_s=30.0, error_model=WHITE, seed=3, gps_rate_hz=2.0, gps_sigma_m=0.3)
+
+
+@pytest.fixture(scope="module")
+def exported(sequence, tmp_path_factory):
+    path = tmp_path_factory.mktemp("export") / "seq.npz"
+    gyro_cov, acc_cov = WHITE.noise_densities()
+    export_preintegration(path, sequence, keyframes_every(sequence, 0.5), gyro_cov, acc_cov)
+    return path
+
+
+def test_irregular_keyframes_equal_integrating_each_interval(sequence, tmp_path):
+    keyframes = np.array([0, 50, 100, 180, 260, 261, 400])
+    path = export_preintegration(tmp_path / "irregular.npz", sequence, keyframes, 1e-6, 1e-4)
+    export = load_export(path)
+    for k, (a, b) in enumerate(zip(keyframes[:-1], keyframes[1:], strict=True)):
+        pre = preintegrate(*(torch.as_tensor(x[a:b]) for x in (sequence.gyro, sequence.acc, sequence.dt)), 1e-6, 1e-4)
+        np.testing.assert_allclose(export.delta_pos[k], pre.pos[-1].numpy(), rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(export.delta_cov[k], pre.cov[-1].numpy(), rtol=1e-12, atol=1e-20)
+    assert export.delta_dt[3] == pytest.approx(80 * 0.005)
+
+
+def test_factors_from_an_export_solve_the_trajectory(sequence, exported):
+    factors, keyframe_t = from_export(exported)
+    export = load_export(exported)
+    assert len(factors) == len(keyframe_t) - 1 == 59
+    graph = gtsam.NonlinearFactorGraph()
+    for factor in factors:
+        graph.add(factor)
+    gt = sequence.gt
+    initial = gtsam.Values()
+    rng = np.random.default_rng(0)
+    for k, i in enumerate(export.keyframe_index):
+        truth = gtsam.Pose3(gtsam.Rot3(gt.rot[i]), gt.pos[i])
+        initial.insert(X(k), truth.retract(rng.normal(0, 0.1, 6)))
+        initial.insert(V(k), gt.vel[i] + rng.normal(0, 0.2, 3))
+        fix = np.flatnonzero(np.isclose(sequence.gps.t, sequence.t[i]))
+        if len(fix):
+            graph.add(GpsFactor(X(k), sequence.gps.pos[fix[0]], gps_noise(0.3)))
+    # at the true states the IMU factors are consistent with their covariance (chi^2 per factor ~ 9)
+    truth_values = gtsam.Values()
+    for k, i in enumerate(export.keyframe_index):
+        truth_values.insert(X(k), gtsam.Pose3(gtsam.Rot3(gt.rot[i]), gt.pos[i]))
+        truth_values.insert(V(k), gt.vel[i])
+    chi2 = np.mean([2 * f.error(truth_values) for f in factors])
+    assert 5 < chi2 < 14
+    result = gtsam.LevenbergMarquardtOptimizer(graph, initial).optimize()
+    est = np.array([result.atPose3(X(k)).translation() for k in range(len(keyframe_t))])
+    ate = np.sqrt(np.mean(np.sum((est - gt.pos[export.keyframe_index]) ** 2, axis=1)))
+    assert ate < 0.15  # GPS alone is 0.3 m per axis at every keyframe; the IMU chain tightens it
+
+
+def _rewrite(src, dst, **changes):
+    with np.load(src, allow_pickle=False) as data:
+        arrays = {k: data[k] for k in data.files}
+    arrays.update(changes)
+    for key in [k for k, v in changes.items() if v is None]:
+        del arrays[key]
+    np.savez(dst, **arrays)
+    return dst
+
+
+def test_bad_exports_are_named(exported, tmp_path):
+    cases = [
+        ({"format_version": np.array(2)}, "'format_version' is 2"),
+        ({"delta_cov": None}, "'delta_cov' is missing"),
+        ({"delta_pos": np.zeros((3, 3))}, r"'delta_pos' has shape \(3, 3\)"),
+    ]
+    for changes, message in cases:
+        with pytest.raises(ExportError, match=message):
+            load_export(_rewrite(exported, tmp_path / "bad.npz", **changes))
+    with np.load(exported) as data:
+        nan_vel = data["delta_vel"].copy()
+    nan_vel[4, 1] = np.nan
+    with pytest.raises(ExportError, match="'delta_vel' contains NaN"):
+        load_export(_rewrite(exported, tmp_path / "nan.npz", delta_vel=nan_vel))
+    with np.load(exported) as data:
+        cov = data["delta_cov"].copy()
+    cov[7] = -np.eye(9)
+    with pytest.raises(ExportError, match="interval 7: .*positive definite"):
+        from_export(_rewrite(exported, tmp_path / "cov.npz", delta_cov=cov))
+
+
+def test_corrupt_or_pickled_files_are_refused(exported, tmp_path):
+    corrupt = tmp_path / "corrupt.npz"
+    corrupt.write_bytes(exported.read_bytes()[:200])
+    with pytest.raises(ExportError, match="corrupt.npz: not a readable"):
+        load_export(corrupt)
+    pickled = tmp_path / "pickled.npz"
+    np.savez(pickled, format_version=np.array(1), t=np.array([{"evil": 1}], dtype=object))
+    with pytest.raises(ExportError, match="pickled.npz"):
+        load_export(pickled)
+    with pytest.raises(ExportError, match="file not found"):
+        load_export(tmp_path / "missing.npz")

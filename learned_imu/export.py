@@ -16,13 +16,12 @@ Files are written to a temporary name and renamed, so a crash never leaves a hal
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from learned_imu.io import atomic_file
 from learned_imu.preintegration import preintegrate
 from learned_imu.sequence import ImuSequence
 
@@ -100,17 +99,6 @@ def export_preintegration(
     if sequence.gt is not None:
         gt = sequence.gt
         arrays.update(gt_rot=gt.rot, gt_pos=gt.pos, gt_vel=gt.vel, gt_valid=gt.valid)
-    return _save_npz_atomic(Path(path), arrays)
-
-
-def _save_npz_atomic(path: Path, arrays: dict) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    with atomic_file(path, "wb") as f:
+        np.savez(f, **arrays)
+    return Path(path)

@@ -27,7 +27,7 @@ def gps_noise(sigma_m, robust: str | None = None, robust_k: float = 1.345) -> gt
         return gaussian
     if robust not in ROBUST_LOSSES:
         raise ValueError(f"unknown robust loss {robust!r}; known: {', '.join(ROBUST_LOSSES)}")
-    estimator = (gtsam.noiseModel.mEstimator.Huber if robust == "huber" else gtsam.noiseModel.mEstimator.Cauchy)
+    estimator = gtsam.noiseModel.mEstimator.Huber if robust == "huber" else gtsam.noiseModel.mEstimator.Cauchy
     return gtsam.noiseModel.Robust.Create(estimator.Create(robust_k), gaussian)
 
 

@@ -1,0 +1,83 @@
+"""AirIMU's training losses, with errors taken in the chart of the propagated covariance.
+
+Ground truth states at the start of a window (i) and at each supervised sample (j) become ground-truth deltas
+(Forster's, gravity removed): ``dR = R_i^T R_j``, ``dv = R_i^T (v_j - v_i - g t)``,
+``dp = R_i^T (p_j - p_i - v_i t - g t^2 / 2)``. The error vector is [theta, p, v] in GTSAM's tangent order:
+``Log(dR_gt) - Log(dR)`` (tangent coordinates of the rotation, rad), ``dp_gt - dp`` (m), ``dv_gt - dv`` (m/s), all in
+the frame at i -- exactly the coordinates of ``Preintegrated.cov``, so the likelihood below is consistent.
+
+- state loss: Huber (smooth L1) on each error block, weighted per block;
+- covariance loss: Gaussian negative log-likelihood of the errors under the diagonal of the covariance,
+  ``0.5 * (e^2 / sigma^2 + log sigma^2)``, weighted by epsilon (the paper uses 1e-3);
+- normalised squared errors ``e^2 / sigma^2`` per block, for calibration reports (about 1 when calibrated).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch.nn import functional
+
+from learned_imu import so3
+from learned_imu.preintegration import NavState, Preintegrated
+
+VARIANCE_FLOOR = 1e-12  # added to predicted variances in the likelihood (units of each block squared)
+
+
+@dataclass(frozen=True)
+class LossWeights:
+    """Per-term weights: state-loss blocks and the covariance loss (epsilon)."""
+
+    rotation: float = 1.0
+    position: float = 1.0
+    velocity: float = 1.0
+    covariance: float = 1e-3
+    huber_delta: float = 0.005  # transition of the smooth L1 loss, in the unit of each block
+
+
+def delta_errors(pre: Preintegrated, start: NavState, end: NavState, gravity) -> torch.Tensor:
+    """(..., K, 9) errors [theta, p, v] of the deltas ``pre`` (K samples) against ground truth.
+
+    ``start``: ground-truth state at the window start, shapes (..., 3, 3) / (..., 3); ``end``: ground-truth
+    states after the K reported samples, (..., K, 3, 3) / (..., K, 3); ``gravity`` (3,) world frame.
+    """
+    g = torch.as_tensor(gravity, dtype=pre.pos.dtype, device=pre.pos.device)
+    t = pre.dt[..., None]
+    r_i_t = start.rot.mT[..., None, :, :]
+    rot_gt = r_i_t @ end.rot
+    vel_gt = (r_i_t @ (end.vel - start.vel[..., None, :] - g * t)[..., None])[..., 0]
+    pos_gt = (r_i_t @ (end.pos - start.pos[..., None, :] - start.vel[..., None, :] * t - 0.5 * g * t * t)[..., None])[
+        ..., 0
+    ]
+    theta = so3.log(rot_gt) - so3.log(pre.rot)
+    return torch.cat([theta, pos_gt - pre.pos, vel_gt - pre.vel], dim=-1)
+
+
+def state_loss(errors: torch.Tensor, weights: LossWeights) -> torch.Tensor:
+    """Weighted Huber loss of the [theta, p, v] errors (..., 9), averaged over everything but the block."""
+    zero = torch.zeros_like(errors)
+    huber = functional.smooth_l1_loss(errors, zero, reduction="none", beta=weights.huber_delta)
+    blocks = huber.unflatten(-1, (3, 3)).mean(dim=tuple(range(huber.ndim - 1)) + (-1,))  # (3,)
+    return weights.rotation * blocks[0] + weights.position * blocks[1] + weights.velocity * blocks[2]
+
+
+def covariance_nll(errors: torch.Tensor, cov: torch.Tensor) -> torch.Tensor:
+    """Mean Gaussian negative log-likelihood of errors (..., 9) under the diagonal of ``cov`` (..., 9, 9)."""
+    variance = torch.diagonal(cov, dim1=-2, dim2=-1) + VARIANCE_FLOOR
+    return 0.5 * (errors.square() / variance + variance.log()).mean()
+
+
+def total_loss(errors: torch.Tensor, cov: torch.Tensor | None, weights: LossWeights) -> torch.Tensor:
+    """State loss plus, when a covariance is given, epsilon times its negative log-likelihood."""
+    loss = state_loss(errors, weights)
+    if cov is not None and weights.covariance > 0:
+        loss = loss + weights.covariance * covariance_nll(errors, cov)
+    return loss
+
+
+def normalised_squared_errors(errors: torch.Tensor, cov: torch.Tensor) -> torch.Tensor:
+    """(3,) mean of e^2 / sigma^2 over the rotation, position and velocity blocks (1 when calibrated)."""
+    variance = torch.diagonal(cov, dim1=-2, dim2=-1) + VARIANCE_FLOOR
+    ratio = (errors.square() / variance).unflatten(-1, (3, 3))
+    return ratio.mean(dim=tuple(range(ratio.ndim - 2)) + (-1,))

@@ -1,0 +1,80 @@
+"""Training windows: fixed-length stretches of a sequence, each starting from its ground-truth state.
+
+A window of L samples starting at sample s carries the IMU samples s .. s+L-1, the ground-truth state at s, and
+the ground-truth states after every ``every``-th sample (AirIMU supervises every k-th; the official default is
+50 of 1000). Only windows whose ground truth is valid throughout are kept.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from learned_imu.preintegration import NavState
+from learned_imu.sequence import ImuSequence
+
+
+@dataclass(frozen=True, eq=False)
+class Windows:
+    """M windows of L samples. Shapes: ``gyro``/``acc`` (M, L, 3) rad/s and m/s^2, ``dt`` (M, L) s; ``start``
+    states (M, ...); ``targets`` states after the supervised samples (M, K, ...); ``gravity`` (3,) world."""
+
+    gyro: torch.Tensor
+    acc: torch.Tensor
+    dt: torch.Tensor
+    start: NavState
+    targets: NavState
+    gravity: torch.Tensor
+    at: slice
+
+    def __len__(self) -> int:
+        return self.gyro.shape[0]
+
+    def select(self, index: torch.Tensor) -> Windows:
+        """The windows at ``index`` (a 1-D index tensor)."""
+        pick = _pick(index)
+        return Windows(
+            self.gyro[index], self.acc[index], self.dt[index], pick(self.start), pick(self.targets), self.gravity,
+            self.at,
+        )  # fmt: skip
+
+
+def make_windows(
+    sequence: ImuSequence, length: int = 1000, every: int = 50, stride: int | None = None, dtype=torch.float32
+) -> Windows:
+    """Cut ``sequence`` into windows of ``length`` samples every ``stride`` samples (default: ``length``)."""
+    if sequence.gt is None:
+        raise ValueError(f"{sequence.name}: training windows need ground truth")
+    if not 1 <= every <= length or length >= len(sequence):
+        raise ValueError(f"{sequence.name}: need 1 <= every <= length < {len(sequence)}, got {every}, {length}")
+    stride = stride or length
+    gt = sequence.gt
+    starts = np.arange(0, len(sequence) - length, stride)
+    starts = starts[[gt.valid[s : s + length + 1].all() for s in starts]]
+    if len(starts) == 0:
+        raise ValueError(f"{sequence.name}: no window of {length} samples with valid ground truth")
+    take = starts[:, None] + np.arange(length)
+    at = slice(every - 1, None, every)
+    after = (take + 1)[:, at]
+
+    def t(x):
+        return torch.as_tensor(x, dtype=dtype)
+
+    return Windows(
+        gyro=t(sequence.gyro[take]),
+        acc=t(sequence.acc[take]),
+        dt=t(sequence.dt[take]),
+        start=NavState(t(gt.rot[starts]), t(gt.vel[starts]), t(gt.pos[starts])),
+        targets=NavState(t(gt.rot[after]), t(gt.vel[after]), t(gt.pos[after])),
+        gravity=t(sequence.gravity),
+        at=at,
+    )
+
+
+def _pick(index: torch.Tensor):
+    def pick(state: NavState) -> NavState:
+        return NavState(state.rot[index], state.vel[index], state.pos[index])
+
+    return pick

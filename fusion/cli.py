@@ -23,6 +23,30 @@ def demo(
     run_demo(duration_s=duration, seed=seed)
 
 
+METRIC_COLUMNS = (
+    ("ROE (deg)", "roe_deg"),
+    ("RPE (m)", "rpe_m"),
+    ("R-RMSE (deg)", "r_rmse_deg"),
+    ("P-RMSE (m)", "p_rmse_m"),
+)
+
+
+def _read_one(dataset: str, path: str, imu_file: str | None):
+    from learned_imu.datasets import read_sequence
+
+    options = {"imu_file": imu_file} if imu_file else {}
+    sequence = read_sequence(dataset, path, **options)
+    if isinstance(sequence, list):
+        raise typer.BadParameter(f"{path}: the reader split the sequence at gaps; pass one piece")
+    return sequence
+
+
+def _load_config(config: str, data_root: str | None):
+    from learned_imu.config import load_config
+
+    return load_config(config, data_root=data_root)
+
+
 @app.command()
 def evaluate(
     dataset: str = typer.Option(..., help="reader name: euroc, kitti, broad, rosbag, csv"),
@@ -30,39 +54,134 @@ def evaluate(
     interval: float = typer.Option(1.0, help="evaluation interval, in --interval-unit"),
     interval_unit: str = typer.Option("s", help="'s' (seconds) or 'frames' (IMU samples)"),
     imu_file: str = typer.Option(None, help="EuRoC/TUM-VI: IMU csv relative to the sequence folder"),
+    checkpoint: str = typer.Option(None, help="a trained model (best.pt): evaluate its corrected IMU"),
     json_out: str = typer.Option(None, "--json", help="write the metrics to this JSON file"),
 ) -> None:
-    """Integrate a sequence's raw IMU over windows restarted from ground truth and print the paper's metrics."""
+    """Integrate a sequence's IMU (raw, or corrected by --checkpoint) over windows restarted from ground truth and
+    print the paper's metrics."""
     from rich.console import Console
     from rich.table import Table
 
-    from learned_imu.datasets import read_sequence
     from learned_imu.evaluate import evaluate as run_evaluation
     from learned_imu.io import write_json_atomic
 
-    options = {"imu_file": imu_file} if imu_file else {}
-    result = run_evaluation(read_sequence(dataset, path, **options), interval, interval_unit)
-    table = Table(title=f"{result.sequence}: raw IMU, interval {result.interval_s:.3f} s ({result.n_windows} windows)")
-    for column in ("ROE (deg)", "RPE (m)", "R-RMSE (deg)", "P-RMSE (m)", "V-RMSE (m/s)", "ATE (m)", "ATE aligned (m)"):
+    sequence = _read_one(dataset, path, imu_file)
+    gyro = acc = None
+    label = "raw IMU"
+    if checkpoint:
+        from learned_imu.checkpoint import model_from_checkpoint
+        from learned_imu.experiment import correct
+
+        model, config = model_from_checkpoint(checkpoint)
+        out = correct(model, sequence, bool(config.get("train", {}).get("remove_gravity", False)))
+        gyro, acc, label = out.gyro.numpy(), out.acc.numpy(), f"corrected by {checkpoint}"
+    result = run_evaluation(sequence, interval, interval_unit, gyro, acc)
+    table = Table(title=f"{result.sequence}: {label}, interval {result.interval_s:.3f} s ({result.n_windows} windows)")
+    extra = (("V-RMSE (m/s)", "v_rmse_m_s"), ("ATE (m)", "ate_m"), ("ATE aligned (m)", "ate_aligned_m"))
+    names = (*METRIC_COLUMNS, *extra)
+    for column, _ in names:
         table.add_column(column)
-    table.add_row(
-        *(
-            f"{v:.4g}"
-            for v in (
-                result.roe_deg,
-                result.rpe_m,
-                result.r_rmse_deg,
-                result.p_rmse_m,
-                result.v_rmse_m_s,
-                result.ate_m,
-                result.ate_aligned_m,
-            )
-        )
-    )
+    table.add_row(*(f"{getattr(result, key):.4g}" for _, key in names))
     Console().print(table)
     if json_out:
         Console().print(f"metrics written to {write_json_atomic(json_out, result.to_json_dict())}")
 
 
+@app.command()
+def train(
+    config: str = typer.Option(..., help="experiment config (YAML), e.g. configs/euroc.yaml"),
+    out: str = typer.Option(..., help="run folder; an existing run there is resumed"),
+    data_root: str = typer.Option(None, help="folder the config's sequence paths are relative to"),
+    epochs: int = typer.Option(None, help="override train.epochs"),
+    progress: bool = typer.Option(True, help="show progress bars"),
+) -> None:
+    """Train AirIMU (corrections + uncertainty) into a run folder: config.yaml, metrics.jsonl, best.pt, last.pt."""
+    from rich.console import Console
+
+    from learned_imu.experiment import train_run, with_epochs
+
+    cfg = _load_config(config, data_root)
+    summary = train_run(with_epochs(cfg, epochs) if epochs else cfg, out, progress=progress)
+    Console().print(
+        f"{summary.epochs} epochs; best validation loss {summary.best_val_loss:.5f} at epoch {summary.best_epoch} "
+        f"({summary.seconds_to_best:.0f} s of training); run folder: {summary.folder}"
+    )
+
+
+@app.command("ablate-imu")
+def ablate_imu(
+    config: str = typer.Option(..., help="experiment config (YAML)"),
+    out: str = typer.Option("runs/ablate-imu", help="folder for the trained variants"),
+    data_root: str = typer.Option(None, help="folder the config's sequence paths are relative to"),
+    epochs: int = typer.Option(None, help="override train.epochs"),
+    json_out: str = typer.Option(None, "--json", help="write the table to this JSON file"),
+    csv_out: str = typer.Option(None, "--csv", help="write the table to this CSV file"),
+    progress: bool = typer.Option(True, help="show progress bars"),
+) -> None:
+    """The paper's IMU ablation: Baseline, Average Bias, AirIMU w/o and with covariance loss, in one table."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from learned_imu.ablation import ablate, write_rows
+    from learned_imu.experiment import with_epochs
+
+    cfg = _load_config(config, data_root)
+    rows = ablate(with_epochs(cfg, epochs) if epochs else cfg, out, progress=progress)
+    table = Table(title=f"{cfg.name}: IMU ablation, interval {cfg.evaluation.interval} {cfg.evaluation.interval_unit}")
+    for column in ("Sequence", "Setting", *(c for c, _ in METRIC_COLUMNS), "NSE rot/pos/vel"):
+        table.add_column(column)
+    for row in rows:
+        nse = "-" if row.nse_rot != row.nse_rot else f"{row.nse_rot:.2f}/{row.nse_pos:.2f}/{row.nse_vel:.2f}"
+        table.add_row(row.sequence, row.variant, *(f"{getattr(row, key):.4g}" for _, key in METRIC_COLUMNS), nse)
+    Console().print(table)
+    write_rows(rows, json_out, csv_out)
+    for path in (json_out, csv_out):
+        if path:
+            Console().print(f"table written to {path}")
+
+
+@app.command()
+def export(
+    checkpoint: str = typer.Option(None, help="trained model (best.pt); without it the raw IMU is exported"),
+    dataset: str = typer.Option(..., help="reader name: euroc, kitti, broad, rosbag, csv"),
+    path: str = typer.Option(..., help="the sequence"),
+    keyframes: str = typer.Option("0.1s", help="keyframe interval like '0.1s', or a file of times (s) per line"),
+    out: str = typer.Option(..., help="output .npz (format in learned_imu.export)"),
+    imu_file: str = typer.Option(None, help="EuRoC/TUM-VI: IMU csv relative to the sequence folder"),
+    gyro_density: float = typer.Option(None, help="without --checkpoint: gyro noise density, rad/s/sqrt(Hz)"),
+    acc_density: float = typer.Option(None, help="without --checkpoint: acc noise density, m/s^2/sqrt(Hz)"),
+) -> None:
+    """Export corrected samples, their learned noise and preintegrated keyframe deltas + covariances for GTSAM."""
+    from rich.console import Console
+
+    from learned_imu.export import export_preintegration, keyframes_from_spec
+
+    sequence = _read_one(dataset, path, imu_file)
+    index = keyframes_from_spec(sequence, keyframes)
+    if checkpoint:
+        from learned_imu.checkpoint import model_from_checkpoint
+        from learned_imu.experiment import correct
+
+        model, config = model_from_checkpoint(checkpoint)
+        c = correct(model, sequence, bool(config.get("train", {}).get("remove_gravity", False)))
+        arrays = (c.gyro_cov.numpy(), c.acc_cov.numpy(), c.gyro.numpy(), c.acc.numpy())
+    else:
+        if gyro_density is None or acc_density is None:
+            raise typer.BadParameter("without --checkpoint, give --gyro-density and --acc-density")
+        arrays = (gyro_density**2, acc_density**2, None, None)
+    written = export_preintegration(out, sequence, index, *arrays)
+    Console().print(f"{len(index) - 1} keyframe intervals of {sequence.name} written to {written}")
+
+
 def main() -> None:
-    app()
+    """Console entry point: the toolkit's own errors (bad files, configs, checkpoints) print as one line."""
+    import sys
+
+    try:
+        app()
+    except Exception as error:
+        errors = sys.modules.get("learned_imu.errors")  # loaded by any command that can raise them
+        if errors is None or not isinstance(error, errors.AirImuError):
+            raise
+        print(f"airimu: error: {error}", file=sys.stderr)
+        sys.exit(2)

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from learned_imu.errors import DataError
 from learned_imu.io import atomic_file
 from learned_imu.preintegration import preintegrate
 from learned_imu.sequence import ImuSequence
@@ -102,3 +103,31 @@ def export_preintegration(
     with atomic_file(path, "wb") as f:
         np.savez(f, **arrays)
     return Path(path)
+
+
+def keyframes_from_spec(sequence: ImuSequence, spec: str) -> np.ndarray:
+    """Keyframe sample indices from ``"0.1s"`` (every 0.1 s) or a text file of times (s, one per line, IMU clock;
+    each maps to the nearest sample, which must lie within half a sample period)."""
+    if spec.endswith("s") and not Path(spec).exists():
+        try:
+            interval = float(spec[:-1])
+        except ValueError:
+            raise ValueError(f"keyframes: expected an interval like '0.1s' or a file of times, got {spec!r}") from None
+        if not interval > 0:
+            raise ValueError(f"keyframes: interval must be positive, got {spec!r}")
+        return keyframes_every(sequence, interval)
+    path = Path(spec)
+    if not path.is_file():
+        raise ValueError(f"keyframes: {spec!r} is neither an interval like '0.1s' nor a file")
+    try:
+        times = np.loadtxt(path, ndmin=1, comments="#")
+    except ValueError as error:
+        raise DataError(path, "time", f"expected one time in seconds per line ({error})") from error
+    if times.ndim != 1 or not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0):
+        raise DataError(path, "time", "expected finite, strictly increasing times in seconds, one per line")
+    index = np.clip(np.searchsorted(sequence.t, times), 1, len(sequence) - 1)
+    index = np.where(np.abs(sequence.t[index - 1] - times) <= np.abs(sequence.t[index] - times), index - 1, index)
+    far = np.abs(sequence.t[index] - times) > 0.5 * float(np.median(sequence.dt))
+    if far.any():
+        raise DataError(path, "time", f"time {times[far][0]} s lies outside the IMU samples of {sequence.name}")
+    return index

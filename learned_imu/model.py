@@ -144,8 +144,12 @@ class AirImuNet(nn.Module):
         self.register_buffer("log_init_acc_density", torch.tensor(math.log(init_acc_density)))
         self.register_buffer("log_init_gyro_density", torch.tensor(math.log(init_gyro_density)))
 
-    def forward(self, gyro: torch.Tensor, acc: torch.Tensor) -> Correction:
+    def forward(self, gyro: torch.Tensor, acc: torch.Tensor, gravity_imu: torch.Tensor | None = None) -> Correction:
         """Correct whole sequences in one pass, starting from rest (zero history and GRU states).
+
+        ``gravity_imu`` (B, N, 3), m/s^2: gravity in the IMU frame from ground truth (``R_gt^T g``); when given,
+        the network sees ``acc + gravity_imu`` (the official code's gravity removal; training and evaluation
+        with ground truth only). The corrections still apply to ``acc``.
 
         A tail that does not fill a block is padded with copies of the last sample (as ``stream`` does with
         ``flush=True``), so its outputs depend on that last sample.
@@ -155,7 +159,8 @@ class AirImuNet(nn.Module):
             - Output: ``Correction`` with (B, N, 3) fields.
         """
         _check(gyro, acc)
-        x = self._inputs(_pad_to_block(gyro, self.block), _pad_to_block(acc, self.block))
+        seen = acc if gravity_imu is None else acc + gravity_imu
+        x = self._inputs(_pad_to_block(gyro, self.block), _pad_to_block(seen, self.block))
         for conv in self.convs:
             x = conv(nn.functional.pad(x, (self.pad, 0)))
         features = x.mT

@@ -165,10 +165,16 @@ def simulate(
     gps_rate_hz: float | None = None,
     gps_sigma_m: float = 0.1,
     error_model: ImuErrorModel | None = None,
+    device_seed: int | None = None,
 ) -> ImuSequence:
-    """A seeded ``ImuSequence`` with ground truth (and GPS fixes if ``gps_rate_hz`` is given)."""
+    """A seeded ``ImuSequence`` with ground truth (and GPS fixes if ``gps_rate_hz`` is given).
+
+    ``device_seed``: recordings with the same device seed come from the same physical IMU -- they share its
+    turn-on biases, scale/misalignment and g-sensitivity (as EuRoC's sequences share most of their bias) while
+    ``seed`` draws the motion and the random processes. None: everything from ``seed``.
+    """
     return simulate_with_truth(
-        profile, duration_s, rate_hz, grade, seed, gps_rate_hz, gps_sigma_m, error_model
+        profile, duration_s, rate_hz, grade, seed, gps_rate_hz, gps_sigma_m, error_model, device_seed
     ).sequence
 
 
@@ -181,6 +187,7 @@ def simulate_with_truth(
     gps_rate_hz: float | None = None,
     gps_sigma_m: float = 0.1,
     error_model: ImuErrorModel | None = None,
+    device_seed: int | None = None,
 ) -> SimulatedSequence:
     """Like ``simulate`` but also returns the clean IMU and the true biases."""
     if profile not in PROFILES:
@@ -189,6 +196,7 @@ def simulate_with_truth(
         raise ValueError(f"duration_s and rate_hz must be positive, got {duration_s}, {rate_hz}")
     model = error_model or ImuErrorModel.from_grade(grade)
     rng = np.random.default_rng(seed)
+    device = rng if device_seed is None else np.random.default_rng([device_seed, 0x1D])  # the IMU's constants
     dt = 1.0 / rate_hz
     n = int(round(duration_s * rate_hz))
     t = np.arange(n + 1) * dt  # one more state than samples: sample k acts between states k and k+1
@@ -203,20 +211,20 @@ def simulate_with_truth(
     phase = rng.uniform(0, 2 * np.pi)
     drift = np.sin(2 * np.pi * ts / model.temperature_period_s + phase)[:, None] * np.array([1.0, -0.7, 0.4])
     gyro_bias = (
-        rng.normal(0, model.gyro_turn_on_bias_rad_s, 3)
+        device.normal(0, model.gyro_turn_on_bias_rad_s, 3)
         + np.cumsum(rng.normal(0, model.gyro_bias_rw_rad_s2_sqrthz * np.sqrt(dt), (n, 3)), axis=0)
         + _gauss_markov(rng, n, dt, model.gyro_bias_instability_rad_s, model.bias_correlation_time_s)
         + model.gyro_temperature_drift_rad_s * drift
     )
     acc_bias = (
-        rng.normal(0, model.acc_turn_on_bias_m_s2, 3)
+        device.normal(0, model.acc_turn_on_bias_m_s2, 3)
         + np.cumsum(rng.normal(0, model.acc_bias_rw_m_s3_sqrthz * np.sqrt(dt), (n, 3)), axis=0)
         + _gauss_markov(rng, n, dt, model.acc_bias_instability_m_s2, model.bias_correlation_time_s)
         + model.acc_temperature_drift_m_s2 * drift
     )
-    gyro_m = np.eye(3) + rng.normal(0, model.gyro_scale_misalignment, (3, 3))
-    acc_m = np.eye(3) + rng.normal(0, model.acc_scale_misalignment, (3, 3))
-    g_sens = rng.normal(0, model.gyro_g_sensitivity_rad_s_per_m_s2, (3, 3))
+    gyro_m = np.eye(3) + device.normal(0, model.gyro_scale_misalignment, (3, 3))
+    acc_m = np.eye(3) + device.normal(0, model.acc_scale_misalignment, (3, 3))
+    g_sens = device.normal(0, model.gyro_g_sensitivity_rad_s_per_m_s2, (3, 3))
     burst = _bursts(rng, ts, model.vibration_duty)
     shake = burst[:, None] * np.sin(2 * np.pi * model.vibration_hz * ts[:, None] + rng.uniform(0, 2 * np.pi, 3))
     gyro = (

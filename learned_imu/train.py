@@ -3,12 +3,14 @@
 One step: the network corrects a batch of windows and predicts their noise densities; ``preintegrate`` turns
 them into deltas and covariances at the supervised samples; the loss compares the deltas with the ground truth
 in the covariance's chart (``learned_imu.losses``). Adam with weight decay, learning rate reduced on plateaus of
-the validation loss. Deterministic on CPU for a seed.
+the validation loss. Deterministic on CPU for a seed: the shuffling generator and torch's global RNG (dropout)
+are part of ``Trainer.state_dict``, so a resumed run continues exactly where the interrupted one was.
 """
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -33,11 +35,92 @@ class EpochLog:
 
 def window_loss(model: AirImuNet, windows: Windows, weights: LossWeights, use_covariance: bool = True) -> torch.Tensor:
     """Loss of ``model`` on ``windows`` (see the module docstring)."""
-    out = model(windows.gyro, windows.acc)
+    out = model(windows.gyro, windows.acc, gravity_imu=windows.gravity_imu)
     densities = (out.gyro_cov, out.acc_cov) if use_covariance else (None, None)
     pre = preintegrate(out.gyro, out.acc, windows.dt, *densities, at=windows.at)
     errors = delta_errors(pre, windows.start, windows.targets, windows.gravity)
     return total_loss(errors, pre.cov, weights)
+
+
+class Trainer:
+    """Adam + ReduceLROnPlateau over shuffled mini-batches of windows; one ``epoch()`` at a time."""
+
+    def __init__(
+        self,
+        model: AirImuNet,
+        train: Windows,
+        val: Windows,
+        batch_size: int = 16,
+        lr: float = 1e-3,
+        weight_decay: float = 1e-4,
+        weights: LossWeights | None = None,
+        use_covariance: bool = True,
+        plateau_factor: float = 0.5,
+        plateau_patience: int = 2,
+        seed: int = 0,
+    ):
+        if batch_size < 1 or len(train) == 0 or len(val) == 0:
+            raise ValueError(f"Trainer: need batch_size >= 1 and windows to train and validate, got {batch_size}")
+        self.model, self.train, self.val = model, train, val
+        self.batch_size, self.use_covariance = batch_size, use_covariance
+        self.weights = weights or LossWeights()
+        self.generator = torch.Generator().manual_seed(seed)
+        self.optimiser = torch.optim.Adam(model.parameters(), lr=lr, weight_decay=weight_decay)
+        self.scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(
+            self.optimiser, factor=plateau_factor, patience=plateau_patience
+        )
+        self.epochs_done = 0
+
+    def epoch(self, on_batch: Callable[[float], None] | None = None) -> EpochLog:
+        """Train one pass over the shuffled training windows, validate, step the LR schedule."""
+        self.model.train()
+        order = torch.randperm(len(self.train), generator=self.generator)
+        losses = []
+        for first in range(0, len(self.train), self.batch_size):
+            batch = self.train.select(order[first : first + self.batch_size])
+            loss = window_loss(self.model, batch, self.weights, self.use_covariance)
+            self.optimiser.zero_grad()
+            loss.backward()
+            self.optimiser.step()
+            losses.append(loss.item())
+            if on_batch is not None:
+                on_batch(losses[-1])
+        lr = self.optimiser.param_groups[0]["lr"]
+        val_loss = self.validation_loss()
+        self.scheduler.step(val_loss)
+        entry = EpochLog(self.epochs_done, sum(losses) / len(losses), val_loss, lr)
+        self.epochs_done += 1
+        log.info("epoch %d: train %.5f, val %.5f, lr %.1e", entry.epoch, entry.train_loss, entry.val_loss, lr)
+        return entry
+
+    @torch.no_grad()
+    def validation_loss(self) -> float:
+        """Loss on the validation windows in eval mode (batched like training, to bound memory)."""
+        self.model.eval()
+        total = 0.0
+        for first in range(0, len(self.val), self.batch_size):
+            batch = self.val.select(torch.arange(first, min(first + self.batch_size, len(self.val))))
+            total += window_loss(self.model, batch, self.weights, self.use_covariance).item() * len(batch)
+        return total / len(self.val)
+
+    def state_dict(self) -> dict:
+        """Everything needed to continue exactly: model, optimiser, schedule, RNG states, epochs done."""
+        return {
+            "model": self.model.state_dict(),
+            "optimiser": self.optimiser.state_dict(),
+            "scheduler": self.scheduler.state_dict(),
+            "generator": self.generator.get_state(),
+            "torch_rng": torch.get_rng_state(),
+            "epochs_done": self.epochs_done,
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        self.model.load_state_dict(state["model"])
+        self.optimiser.load_state_dict(state["optimiser"])
+        self.scheduler.load_state_dict(state["scheduler"])
+        self.generator.set_state(state["generator"])
+        torch.set_rng_state(state["torch_rng"])
+        self.epochs_done = int(state["epochs_done"])
 
 
 def fit(
@@ -52,27 +135,6 @@ def fit(
     use_covariance: bool = True,
     seed: int = 0,
 ) -> list[EpochLog]:
-    """Train ``model`` in place; returns one ``EpochLog`` per epoch."""
-    weights = weights or LossWeights()
-    generator = torch.Generator().manual_seed(seed)
-    optimiser = torch.optim.Adam(model.parameters(), lr=lr, weight_decay=weight_decay)
-    scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(optimiser, factor=0.5, patience=2)
-    history = []
-    for epoch in range(epochs):
-        model.train()
-        order = torch.randperm(len(train), generator=generator)
-        losses = []
-        for first in range(0, len(train), batch_size):
-            loss = window_loss(model, train.select(order[first : first + batch_size]), weights, use_covariance)
-            optimiser.zero_grad()
-            loss.backward()
-            optimiser.step()
-            losses.append(loss.item())
-        model.eval()
-        with torch.no_grad():
-            val_loss = window_loss(model, val, weights, use_covariance).item()
-        scheduler.step(val_loss)
-        entry = EpochLog(epoch, sum(losses) / len(losses), val_loss, optimiser.param_groups[0]["lr"])
-        log.info("epoch %d: train %.5f, val %.5f, lr %.1e", entry.epoch, entry.train_loss, entry.val_loss, entry.lr)
-        history.append(entry)
-    return history
+    """Train ``model`` in place for ``epochs``; returns one ``EpochLog`` per epoch (no run folder)."""
+    trainer = Trainer(model, train, val, batch_size, lr, weight_decay, weights, use_covariance, seed=seed)
+    return [trainer.epoch() for _ in range(epochs)]

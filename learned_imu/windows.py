@@ -19,7 +19,9 @@ from learned_imu.sequence import ImuSequence
 @dataclass(frozen=True, eq=False)
 class Windows:
     """M windows of L samples. Shapes: ``gyro``/``acc`` (M, L, 3) rad/s and m/s^2, ``dt`` (M, L) s; ``start``
-    states (M, ...); ``targets`` states after the supervised samples (M, K, ...); ``gravity`` (3,) world."""
+    states (M, ...); ``targets`` states after the supervised samples (M, K, ...); ``gravity`` (3,) world;
+    ``gravity_imu`` (M, L, 3) the gravity vector in the IMU frame from ground truth, ``R_gt^T g`` (only when
+    the network's input has gravity removed, ``make_windows(remove_gravity=True)``), else None."""
 
     gyro: torch.Tensor
     acc: torch.Tensor
@@ -28,6 +30,7 @@ class Windows:
     targets: NavState
     gravity: torch.Tensor
     at: slice
+    gravity_imu: torch.Tensor | None = None
 
     def __len__(self) -> int:
         return self.gyro.shape[0]
@@ -37,14 +40,21 @@ class Windows:
         pick = _pick(index)
         return Windows(
             self.gyro[index], self.acc[index], self.dt[index], pick(self.start), pick(self.targets), self.gravity,
-            self.at,
+            self.at, None if self.gravity_imu is None else self.gravity_imu[index],
         )  # fmt: skip
 
 
 def make_windows(
-    sequence: ImuSequence, length: int = 1000, every: int = 50, stride: int | None = None, dtype=torch.float32
+    sequence: ImuSequence,
+    length: int = 1000,
+    every: int = 50,
+    stride: int | None = None,
+    dtype=torch.float32,
+    remove_gravity: bool = False,
 ) -> Windows:
-    """Cut ``sequence`` into windows of ``length`` samples every ``stride`` samples (default: ``length``)."""
+    """Cut ``sequence`` into windows of ``length`` samples every ``stride`` samples (default: ``length``).
+
+    ``remove_gravity`` adds ``gravity_imu`` (the official code's option: the network sees ``acc + R_gt^T g``)."""
     if sequence.gt is None:
         raise ValueError(f"{sequence.name}: training windows need ground truth")
     if not 1 <= every <= length or length >= len(sequence):
@@ -70,6 +80,7 @@ def make_windows(
         targets=NavState(t(gt.rot[after]), t(gt.vel[after]), t(gt.pos[after])),
         gravity=t(sequence.gravity),
         at=at,
+        gravity_imu=t(np.einsum("mlji,j->mli", gt.rot[take], sequence.gravity)) if remove_gravity else None,
     )
 
 
@@ -78,3 +89,30 @@ def _pick(index: torch.Tensor):
         return NavState(state.rot[index], state.vel[index], state.pos[index])
 
     return pick
+
+
+def concat_windows(parts: list[Windows]) -> Windows:
+    """Windows of several sequences as one set (same length, supervision and gravity required)."""
+    if not parts:
+        raise ValueError("concat_windows: no windows given")
+    first = parts[0]
+    for other in parts[1:]:
+        if other.gyro.shape[1] != first.gyro.shape[1] or other.at != first.at:
+            raise ValueError("concat_windows: windows differ in length or supervised samples")
+        if not torch.equal(other.gravity, first.gravity):
+            raise ValueError("concat_windows: sequences have different gravity vectors")
+    if len(parts) == 1:
+        return first
+
+    def cat(name: str):
+        return torch.cat([getattr(p, name) for p in parts])
+
+    def cat_state(name: str) -> NavState:
+        states = [getattr(p, name) for p in parts]
+        return NavState(*(torch.cat([getattr(s, f) for s in states]) for f in ("rot", "vel", "pos")))
+
+    gravity_imu = None if first.gravity_imu is None else cat("gravity_imu")
+    return Windows(
+        cat("gyro"), cat("acc"), cat("dt"), cat_state("start"), cat_state("targets"), first.gravity, first.at,
+        gravity_imu,
+    )  # fmt: skip

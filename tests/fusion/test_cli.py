@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 
@@ -63,3 +64,62 @@ def test_evaluate_writes_the_issue_keys(shared_data, tmp_path):
     data = json.loads(out.read_text())
     assert {"roe_deg", "rpe_m", "r_rmse_deg", "p_rmse_m", "ate_m", "interval_s", "n_windows"} <= set(data)
     assert data["interval_s"] == pytest.approx(0.05, abs=1e-4) and data["n_windows"] == 779
+
+
+TINY_YAML = """
+name: tiny
+data:
+  train: [{dataset: simulator, options: {duration_s: 12.0, seed: 1, device_seed: 5}}]
+  val: [{dataset: simulator, options: {duration_s: 6.0, seed: 2, device_seed: 5}}]
+model: {conv_channels: [8, 16], gru_sizes: [16], decoder_hidden: 16}
+train: {window: 200, every: 50, batch_size: 4, epochs: 2, lr: 3e-3}
+"""
+
+
+def test_train_then_evaluate_and_export_with_the_checkpoint(shared_data, tmp_path):
+    from typer.testing import CliRunner
+
+    from factors.export_file import load_export
+    from fusion.cli import app
+    from learned_imu.checkpoint import model_from_checkpoint
+    from learned_imu.datasets import read_sequence
+    from learned_imu.evaluate import evaluate
+    from learned_imu.experiment import correct
+
+    config = tmp_path / "tiny.yaml"
+    config.write_text(TINY_YAML)
+    run = tmp_path / "run"
+    result = CliRunner().invoke(app, ["train", "--config", str(config), "--out", str(run), "--no-progress"])
+    assert result.exit_code == 0, result.output
+    assert "run folder" in result.output and len((run / "metrics.jsonl").read_text().splitlines()) == 2
+
+    seq_path, imu_file = shared_data / "euroc" / "V1_02_medium", "mav0/imu0/data_partial_first40s.csv"
+    where = ["--dataset", "euroc", "--path", str(seq_path), "--imu-file", imu_file]
+    where += ["--checkpoint", str(run / "best.pt")]
+    metrics = tmp_path / "m.json"
+    result = CliRunner().invoke(app, ["evaluate", *where, "--json", str(metrics)])
+    assert result.exit_code == 0, result.output
+    sequence = read_sequence("euroc", seq_path, imu_file=imu_file)
+    model, _ = model_from_checkpoint(run / "best.pt")
+    corrected = correct(model, sequence)
+    expected = evaluate(sequence, 1.0, gyro=corrected.gyro.numpy(), acc=corrected.acc.numpy())
+    assert json.loads(metrics.read_text())["roe_deg"] == pytest.approx(expected.roe_deg, rel=1e-12)
+
+    npz = tmp_path / "v102.npz"
+    result = CliRunner().invoke(app, ["export", *where, "--keyframes", "0.5s", "--out", str(npz)])
+    assert result.exit_code == 0, result.output
+    export = load_export(npz)
+    np.testing.assert_allclose(export.arrays["gyro"], corrected.gyro.numpy())
+    np.testing.assert_allclose(export.arrays["gyro_cov"], corrected.gyro_cov.numpy())
+    assert export.arrays["keyframe_index"][1] == 100  # 0.5 s at 200 Hz
+
+    times = tmp_path / "times.txt"
+    times.write_text("# keyframe times, s\n" + "\n".join(str(t) for t in sequence.t[[0, 250, 900]]))
+    result = CliRunner().invoke(app, ["export", *where, "--keyframes", str(times), "--out", str(npz)])
+    assert result.exit_code == 0, result.output
+    assert load_export(npz).arrays["keyframe_index"].tolist() == [0, 250, 900]
+
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(TINY_YAML + "extra_key: 1\n")
+    result = CliRunner().invoke(app, ["train", "--config", str(bad), "--out", str(tmp_path / "r2")])
+    assert result.exit_code != 0 and "unknown key 'extra_key'" in str(result.exception)

@@ -1,0 +1,208 @@
+"""Typed experiment configuration: frozen dataclasses whose fields match the YAML keys one to one.
+
+``load_config(path)`` reads a YAML file with ``yaml.safe_load`` and builds an ``ExperimentConfig``; an unknown,
+missing or ill-typed key is a ``ConfigError`` naming the file and the key's dotted path (``train.lr``).
+Sequence paths are relative to ``data.root``, which is itself relative to the config file's folder unless
+absolute; ``--data-root`` on the command line overrides it. The config stops at the factories
+(``model_from_config`` etc. in ``learned_imu.experiment``): classes take plain arguments.
+
+Units are in the field names or comments: seconds, samples, m/s^2, rad/s; noise densities are continuous-time
+(rad^2/s, m^2/s^3) as in ``AirImuNet`` and GTSAM.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from learned_imu.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class SequenceConfig:
+    """One sequence: a reader name (``learned_imu.datasets.READERS``) or ``"simulator"``.
+
+    For a reader, ``path`` is relative to ``data.root`` and ``options`` are the reader's keyword arguments
+    (e.g. ``imu_file`` for EuRoC). For ``"simulator"``, ``options`` are ``learned_imu.simulator.simulate``'s
+    (``profile``, ``duration_s``, ``grade``, ``seed``, ...) and ``path`` is unused.
+    """
+
+    dataset: str
+    path: str = ""
+    options: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """Which sequences train, validate (best checkpoint, LR schedule) and are evaluated (ablation tables)."""
+
+    train: tuple[SequenceConfig, ...]
+    val: tuple[SequenceConfig, ...]
+    evaluate: tuple[SequenceConfig, ...] = ()  # default: the validation sequences
+    root: str = "."
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """``AirImuNet``'s arguments (see its docstring)."""
+
+    conv_channels: tuple[int, ...] = (32, 64)
+    kernel_size: int = 7
+    stride: int = 3
+    gru_sizes: tuple[int, ...] = (128, 256)
+    use_gru: bool = True
+    decoder_hidden: int = 128
+    dropout: float = 0.1
+    acc_scale_m_s2: float = 0.1
+    gyro_scale_rad_s: float = 0.017453292519943295  # 1 deg/s
+    init_gyro_density: float = 1.6968e-4**2  # rad^2/s
+    init_acc_density: float = 2.0e-3**2  # m^2/s^3
+
+
+@dataclass(frozen=True)
+class LossConfig:
+    """``LossWeights``: Huber weights per block and epsilon for the covariance NLL (paper 1e-3)."""
+
+    rotation: float = 1.0
+    position: float = 1.0
+    velocity: float = 1.0
+    covariance: float = 1e-3
+    huber_delta: float = 0.005
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Windows, optimiser and schedule. ``window`` and ``every`` and ``stride`` are in IMU samples."""
+
+    window: int = 1000
+    every: int = 50  # supervise every k-th sample of a window (official default 50)
+    stride: int = 0  # distance between training window starts; 0 = window (no overlap)
+    batch_size: int = 16
+    epochs: int = 100
+    lr: float = 1e-3
+    weight_decay: float = 1e-4
+    plateau_factor: float = 0.5  # ReduceLROnPlateau on the validation loss
+    plateau_patience: int = 5
+    early_stop_patience: int = 0  # stop after this many epochs without a better validation loss; 0 = never
+    remove_gravity: bool = False  # network input acc + R_gt^T g (official option; needs ground truth)
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class EvaluationConfig:
+    """Interval of the paper's metrics (``learned_imu.evaluate``) and keyframe spacing of exports, s."""
+
+    interval: float = 1.0
+    interval_unit: str = "s"
+
+
+@dataclass(frozen=True)
+class ExperimentConfig:
+    """A whole experiment: data, model, loss, training and evaluation."""
+
+    name: str
+    data: DataConfig
+    model: ModelConfig = ModelConfig()
+    loss: LossConfig = LossConfig()
+    train: TrainConfig = TrainConfig()
+    evaluation: EvaluationConfig = EvaluationConfig()
+
+
+def load_config(path: str | Path, data_root: str | Path | None = None) -> ExperimentConfig:
+    """Read ``path`` (YAML) into an ``ExperimentConfig``; ``data.root`` is made absolute (``data_root`` wins)."""
+    path = Path(path)
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except OSError as error:
+        raise ConfigError(f"{path}: cannot read the config: {error.strerror}") from error
+    except yaml.YAMLError as error:
+        raise ConfigError(f"{path}: not valid YAML: {error}") from error
+    config = from_dict(ExperimentConfig, raw, source=str(path))
+    root = Path(data_root) if data_root is not None else Path(config.data.root)
+    if not root.is_absolute():
+        root = (Path.cwd() if data_root is not None else path.parent) / root
+    return dataclasses.replace(config, data=dataclasses.replace(config.data, root=str(root.resolve())))
+
+
+def from_dict(cls, data, source: str = "config", where: str = ""):
+    """Build dataclass ``cls`` from a mapping, checking every key and type (errors name ``source`` and the key)."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: {where or 'top level'}: expected a mapping, got {type(data).__name__}")
+    hints = typing.get_type_hints(cls)
+    known = {f.name: f for f in dataclasses.fields(cls)}
+    for key in data:
+        if key not in known:
+            raise ConfigError(
+                f"{source}: unknown key '{_join(where, key)}'; known keys here: {', '.join(sorted(known))}"
+            )
+    values = {}
+    for name, f in known.items():
+        key = _join(where, name)
+        if name in data:
+            values[name] = _convert(hints[name], data[name], source, key)
+        elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+            raise ConfigError(f"{source}: missing key '{key}'")
+    return cls(**values)
+
+
+def to_dict(config) -> dict:
+    """Plain dict (tuples as lists) for YAML/JSON; ``from_dict`` inverts it."""
+
+    def plain(value):
+        if isinstance(value, tuple | list):
+            return [plain(v) for v in value]
+        if isinstance(value, dict):
+            return {k: plain(v) for k, v in value.items()}
+        return value
+
+    return plain(dataclasses.asdict(config))
+
+
+def save_config(path: str | Path, config: ExperimentConfig) -> None:
+    """Write the resolved config as YAML, atomically."""
+    from learned_imu.io import atomic_file
+
+    with atomic_file(path) as f:
+        yaml.safe_dump(to_dict(config), f, sort_keys=False)
+
+
+def _join(where: str, key: str) -> str:
+    return f"{where}.{key}" if where else str(key)
+
+
+def _convert(hint, value, source: str, key: str):
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if dataclasses.is_dataclass(hint):
+        return from_dict(hint, value, source, key)
+    if origin is tuple:
+        if not isinstance(value, list | tuple):
+            raise ConfigError(f"{source}: key '{key}': expected a list, got {value!r}")
+        return tuple(_convert(args[0], v, source, f"{key}[{i}]") for i, v in enumerate(value))
+    if origin is dict:
+        if not isinstance(value, dict) or not all(isinstance(k, str) for k in value):
+            raise ConfigError(f"{source}: key '{key}': expected a mapping with string keys, got {value!r}")
+        return dict(value)
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        return _convert(next(a for a in args if a is not type(None)), value, source, key)
+    if hint is Any:
+        return value
+    if hint is float and isinstance(value, int | float) and not isinstance(value, bool):
+        return float(value)
+    if hint is float and isinstance(value, str):  # PyYAML reads 1e-3 (no dot) as a string
+        try:
+            return float(value)
+        except ValueError:
+            pass
+    if hint is int and isinstance(value, int) and not isinstance(value, bool):
+        return value
+    if hint in (bool, str) and isinstance(value, hint):
+        return value
+    raise ConfigError(f"{source}: key '{key}': expected {hint.__name__}, got {value!r} ({type(value).__name__})")

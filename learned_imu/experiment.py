@@ -1,0 +1,218 @@
+"""Training runs: config -> sequences -> windows -> model -> epochs, in a run folder that explains itself.
+
+A run folder holds:
+
+- ``config.yaml``: the resolved config (every key, defaults filled in, absolute data root);
+- ``metrics.jsonl``: one JSON line per epoch: ``epoch``, ``train_loss``, ``val_loss``, ``lr``, ``seconds``
+  (wall time since the run began, summed over resumptions) and the validation metrics ``val_roe_deg``,
+  ``val_p_rmse_m`` (means over the validation sequences at the configured interval);
+- ``last.pt`` after every epoch and ``best.pt`` at the best validation loss (``learned_imu.checkpoint``).
+
+Running again on the same folder resumes from ``last.pt`` (same config required, except ``RESUMABLE_CHANGES``)
+and continues the metrics log;
+a finished run returns at once. Every file is replaced atomically, so an interruption loses at most the epoch in
+progress.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from learned_imu.checkpoint import build_model, load_checkpoint, save_checkpoint
+from learned_imu.config import ExperimentConfig, SequenceConfig, save_config, to_dict
+from learned_imu.errors import ConfigError
+from learned_imu.evaluate import Evaluation, evaluate
+from learned_imu.io import atomic_file
+from learned_imu.losses import LossWeights
+from learned_imu.model import AirImuNet, Correction, correct_sequence
+from learned_imu.sequence import ImuSequence
+from learned_imu.train import Trainer
+from learned_imu.windows import Windows, concat_windows, make_windows
+
+log = logging.getLogger(__name__)
+SIMULATOR = "simulator"
+# keys that may differ when resuming: the data may move, and the epoch budget may grow
+RESUMABLE_CHANGES = ("data.root", "train.epochs", "train.early_stop_patience")
+
+
+@dataclass(frozen=True)
+class RunSummary:
+    """Where a run's files are and how it ended."""
+
+    folder: Path
+    epochs: int
+    best_epoch: int
+    best_val_loss: float
+    seconds_to_best: float
+
+
+def load_sequence(spec: SequenceConfig, root: str | Path) -> list[ImuSequence]:
+    """Read one configured sequence (a dataset reader, or the simulator); a list, since a reader asked to split
+    at gaps returns the pieces."""
+    if spec.dataset == SIMULATOR:
+        from learned_imu.simulator import simulate
+
+        return [simulate(**spec.options)]
+    from learned_imu.datasets import read_sequence
+
+    path = Path(spec.path)
+    out = read_sequence(spec.dataset, path if path.is_absolute() else Path(root) / path, **spec.options)
+    return out if isinstance(out, list) else [out]
+
+
+def load_sequences(specs: tuple[SequenceConfig, ...], root: str | Path) -> list[ImuSequence]:
+    """All configured sequences, in order."""
+    return [seq for spec in specs for seq in load_sequence(spec, root)]
+
+
+def build_windows(sequences: list[ImuSequence], config: ExperimentConfig, stride: int | None) -> Windows:
+    """Windows of every sequence, concatenated."""
+    train = config.train
+    return concat_windows(
+        [make_windows(s, train.window, train.every, stride, remove_gravity=train.remove_gravity) for s in sequences]
+    )
+
+
+def loss_weights(config: ExperimentConfig) -> LossWeights:
+    return LossWeights(**asdict(config.loss))
+
+
+def correct(model: AirImuNet, sequence: ImuSequence, remove_gravity: bool = False) -> Correction:
+    """The model's output for a whole sequence, (N, 3) fields in float64 (streamed unless gravity removal needs
+    the ground truth in one pass)."""
+    model.eval()
+    gyro = torch.as_tensor(sequence.gyro, dtype=torch.float32)
+    acc = torch.as_tensor(sequence.acc, dtype=torch.float32)
+    if remove_gravity:
+        if sequence.gt is None:
+            raise ValueError(f"{sequence.name}: the model removes gravity with ground truth; the sequence has none")
+        g_imu = torch.as_tensor(np.einsum("nji,j->ni", sequence.gt.rot, sequence.gravity), dtype=torch.float32)
+        with torch.no_grad():
+            out = model(gyro[None], acc[None], gravity_imu=g_imu[None])
+        out = Correction(*(getattr(out, f)[0] for f in out.__dataclass_fields__))
+    else:
+        out = correct_sequence(model, gyro, acc)
+    return Correction(*(getattr(out, f).double() for f in out.__dataclass_fields__))
+
+
+def evaluate_model(model: AirImuNet, sequence: ImuSequence, config: ExperimentConfig) -> Evaluation:
+    """The paper's metrics of the corrected IMU on ``sequence`` at the configured interval."""
+    out = correct(model, sequence, config.train.remove_gravity)
+    interval = config.evaluation
+    return evaluate(sequence, interval.interval, interval.interval_unit, out.gyro.numpy(), out.acc.numpy())
+
+
+def train_run(config: ExperimentConfig, folder: str | Path, progress: bool = True) -> RunSummary:
+    """Train (or resume) the run in ``folder``; see the module docstring. ``loss.covariance = 0`` trains
+    without the covariance loss (and skips the covariance propagation)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    cfg_dict = to_dict(config)
+    train_seqs = load_sequences(config.data.train, config.data.root)
+    val_seqs = load_sequences(config.data.val, config.data.root)
+    t = config.train
+    torch.manual_seed(t.seed)
+    model = build_model(config.model)
+    trainer = Trainer(
+        model, build_windows(train_seqs, config, t.stride or None), build_windows(val_seqs, config, None),
+        batch_size=t.batch_size, lr=t.lr, weight_decay=t.weight_decay, weights=loss_weights(config),
+        use_covariance=config.loss.covariance > 0, plateau_factor=t.plateau_factor, plateau_patience=t.plateau_patience,
+        seed=t.seed,
+    )  # fmt: skip
+    history, best = _resume(folder, cfg_dict, trainer)
+    save_config(folder / "config.yaml", config)
+    clock = time.perf_counter() - (history[-1]["seconds"] if history else 0.0)
+    while trainer.epochs_done < t.epochs and not _stalled(history, best, t.early_stop_patience):
+        entry = asdict(trainer.epoch(on_batch=_progress_bar(progress, trainer, history)))
+        metrics = [evaluate_model(model, s, config) for s in val_seqs]
+        entry["val_roe_deg"] = float(np.mean([m.roe_deg for m in metrics]))
+        entry["val_p_rmse_m"] = float(np.mean([m.p_rmse_m for m in metrics]))
+        entry["seconds"] = time.perf_counter() - clock
+        history.append(entry)
+        if not best or entry["val_loss"] < best["val_loss"]:
+            best = dict(entry)
+            save_checkpoint(folder / "best.pt", cfg_dict, trainer.state_dict(), best)
+        save_checkpoint(folder / "last.pt", cfg_dict, trainer.state_dict(), best)
+        _write_metrics(folder / "metrics.jsonl", history)
+        log.info("%s epoch %d: %s", config.name, entry["epoch"], json.dumps(entry))
+    return RunSummary(folder, trainer.epochs_done, int(best["epoch"]), best["val_loss"], best["seconds"])
+
+
+def _resume(folder: Path, cfg_dict: dict, trainer: Trainer) -> tuple[list[dict], dict]:
+    """Restore ``trainer`` from ``folder/last.pt`` if there is one; the metrics log is cut to its epochs."""
+    last = folder / "last.pt"
+    if not last.exists():
+        return [], {}
+    payload = load_checkpoint(last)
+    differs = _differences(payload["config"], cfg_dict)
+    if differs:
+        raise ConfigError(
+            f"{folder}: the run was started with another config (differs at: {', '.join(differs)}); "
+            "use a new output folder or the original config"
+        )
+    trainer.load_state_dict(payload["trainer"])
+    metrics = folder / "metrics.jsonl"
+    lines = metrics.read_text().splitlines() if metrics.exists() else []
+    history = [json.loads(line) for line in lines][: trainer.epochs_done]
+    log.info("resuming %s after epoch %d", folder, trainer.epochs_done)
+    return history, dict(payload["best"])
+
+
+def _differences(old: dict, new: dict, where: str = "") -> list[str]:
+    keys = sorted(set(old) | set(new))
+    out = []
+    for key in keys:
+        path = f"{where}.{key}" if where else key
+        if path in RESUMABLE_CHANGES:
+            continue
+        a, b = old.get(key), new.get(key)
+        if isinstance(a, dict) and isinstance(b, dict):
+            out += _differences(a, b, path)
+        elif a != b:
+            out.append(path)
+    return out
+
+
+def _stalled(history: list[dict], best: dict, patience: int) -> bool:
+    return patience > 0 and bool(history) and history[-1]["epoch"] - best["epoch"] >= patience
+
+
+def _write_metrics(path: Path, history: list[dict]) -> None:
+    with atomic_file(path) as f:
+        f.writelines(json.dumps(entry) + "\n" for entry in history)
+
+
+def _progress_bar(enabled: bool, trainer: Trainer, history: list[dict]):
+    """A per-epoch tqdm bar over batches showing the running loss and the last validation metrics."""
+    if not enabled:
+        return None
+    from tqdm.auto import tqdm
+
+    batches = -(-len(trainer.train) // trainer.batch_size)
+    bar = tqdm(total=batches, desc=f"epoch {trainer.epochs_done}", leave=False, unit="batch")
+    last = history[-1] if history else {}
+    seen = []
+
+    def on_batch(loss: float) -> None:
+        seen.append(loss)
+        shown = {"loss": f"{np.mean(seen):.4f}"}
+        if last:
+            shown |= {"val": f"{last['val_loss']:.4f}", "val_roe": f"{last['val_roe_deg']:.3f}deg"}
+        bar.set_postfix(shown, refresh=False)
+        bar.update()
+        if len(seen) == batches:
+            bar.close()
+
+    return on_batch
+
+
+def with_epochs(config: ExperimentConfig, epochs: int) -> ExperimentConfig:
+    """``config`` with another epoch budget (for quick runs)."""
+    return replace(config, train=replace(config.train, epochs=epochs))

@@ -1,0 +1,123 @@
+"""Run folders: what they hold, exact resumption, safe checkpoints; the IMU ablation; the average bias."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from learned_imu.ablation import VARIANTS, ablate, write_rows
+from learned_imu.baselines import average_bias
+from learned_imu.checkpoint import load_checkpoint, model_from_checkpoint
+from learned_imu.config import (
+    DataConfig,
+    ExperimentConfig,
+    ModelConfig,
+    SequenceConfig,
+    TrainConfig,
+    from_dict,
+)
+from learned_imu.errors import ConfigError, DataError
+from learned_imu.experiment import train_run, with_epochs
+from learned_imu.simulator import ImuErrorModel, simulate_with_truth
+
+
+def sim(seed: int, duration_s: float = 16.0) -> SequenceConfig:
+    options = {"profile": "drone", "duration_s": duration_s, "grade": "consumer", "seed": seed, "device_seed": 5}
+    return SequenceConfig("simulator", options=options)
+
+
+TINY = ExperimentConfig(
+    name="tiny",
+    data=DataConfig(train=(sim(1), sim(2)), val=(sim(3, 8.0),)),
+    model=ModelConfig(conv_channels=(8, 16), gru_sizes=(16,), decoder_hidden=16),
+    train=TrainConfig(window=200, every=50, batch_size=4, epochs=4, lr=3e-3, seed=0),
+)
+
+
+def lines(path):
+    return [json.loads(line) for line in path.read_text().splitlines()]
+
+
+def test_run_folder_holds_config_metrics_and_checkpoints(tmp_path):
+    summary = train_run(TINY, tmp_path / "run", progress=False)
+    run = tmp_path / "run"
+    assert summary.epochs == 4
+    resolved = from_dict(ExperimentConfig, yaml.safe_load((run / "config.yaml").read_text()))
+    assert resolved == TINY
+    log = lines(run / "metrics.jsonl")
+    assert [e["epoch"] for e in log] == [0, 1, 2, 3]
+    assert {"train_loss", "val_loss", "lr", "val_roe_deg", "val_p_rmse_m", "seconds"} <= set(log[0])
+    best = min(log, key=lambda e: e["val_loss"])
+    assert summary.best_epoch == best["epoch"]
+    assert load_checkpoint(run / "best.pt")["best"]["val_loss"] == best["val_loss"]
+    assert load_checkpoint(run / "last.pt")["trainer"]["epochs_done"] == 4
+    model, config = model_from_checkpoint(run / "best.pt")
+    assert config["model"]["gru_sizes"] == [16] and not model.training
+    assert not list(run.glob(".*.tmp"))  # no temporary file left behind
+
+
+def test_resumed_run_equals_uninterrupted_run(tmp_path):
+    train_run(TINY, tmp_path / "whole", progress=False)
+    train_run(with_epochs(TINY, 2), tmp_path / "resumed", progress=False)
+    train_run(TINY, tmp_path / "resumed", progress=False)  # picks up after epoch 2
+    whole, resumed = lines(tmp_path / "whole" / "metrics.jsonl"), lines(tmp_path / "resumed" / "metrics.jsonl")
+    assert [e["train_loss"] for e in whole] == [e["train_loss"] for e in resumed]
+    assert [e["val_loss"] for e in whole] == [e["val_loss"] for e in resumed]
+    a = load_checkpoint(tmp_path / "whole" / "last.pt")["trainer"]["model"]
+    b = load_checkpoint(tmp_path / "resumed" / "last.pt")["trainer"]["model"]
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    # a finished run returns at once, and a different config is refused by name
+    assert train_run(TINY, tmp_path / "whole", progress=False).epochs == 4
+    other = dataclasses.replace(TINY, train=dataclasses.replace(TINY.train, lr=1e-2))
+    with pytest.raises(ConfigError, match="train.lr"):
+        train_run(other, tmp_path / "whole", progress=False)
+
+
+def test_corrupt_or_foreign_checkpoints_are_named(tmp_path):
+    bad = tmp_path / "last.pt"
+    bad.write_bytes(b"\x00not a checkpoint")
+    with pytest.raises(DataError, match="last.pt.*not a readable torch checkpoint"):
+        load_checkpoint(bad)
+    torch.save({"format": "something-else"}, bad)
+    with pytest.raises(DataError, match="not an AirIMU checkpoint"):
+        load_checkpoint(bad)
+    torch.save({"format": "airimu-checkpoint", "version": 99}, bad)
+    with pytest.raises(DataError, match="version 99"):
+        load_checkpoint(bad)
+    with pytest.raises(DataError, match="not found"):
+        load_checkpoint(tmp_path / "absent.pt")
+    # truncated mid-write (what a crash would leave without the atomic rename)
+    train_run(with_epochs(TINY, 1), tmp_path / "run", progress=False)
+    data = (tmp_path / "run" / "last.pt").read_bytes()
+    bad.write_bytes(data[: len(data) // 2])
+    with pytest.raises(DataError, match="not a readable torch checkpoint"):
+        load_checkpoint(bad)
+
+
+def test_average_bias_recovers_a_constant_simulated_bias():
+    # turn-on biases and white noise only (scale errors and g-sensitivity would add to the mean offset)
+    model = ImuErrorModel(1e-4, 1e-3, 0.0, 0.0, np.radians(0.5), 0.05)
+    truth = simulate_with_truth("drone", duration_s=30.0, error_model=model, seed=2)
+    bias = average_bias([truth.sequence])
+    # white noise leaves 1.8e-5 rad/s and 1.8e-4 m/s^2 (one sigma) on the means
+    np.testing.assert_allclose(bias.gyro_rad_s, truth.gyro_bias.mean(axis=0), atol=1e-4)
+    np.testing.assert_allclose(bias.acc_m_s2, truth.acc_bias.mean(axis=0), atol=1e-3)
+
+
+def test_ablation_scores_the_four_settings(tmp_path):
+    rows = ablate(TINY, tmp_path / "ablation", progress=False)
+    assert [r.variant for r in rows] == [v.name for v in VARIANTS]
+    by = {r.variant: r for r in rows}
+    assert by["Average Bias"].roe_deg < by["Baseline"].roe_deg  # the device's bias dominates the raw error
+    assert np.isnan(by["Baseline"].nse_rot) and np.isfinite(by["AirIMU"].nse_rot)
+    no_cov = load_checkpoint(tmp_path / "ablation" / "airimu_no_cov" / "last.pt")["config"]
+    assert no_cov["loss"]["covariance"] == 0.0
+    write_rows(rows, tmp_path / "t.json", tmp_path / "t.csv")
+    table = json.loads((tmp_path / "t.json").read_text())
+    assert table[0]["variant"] == "Baseline" and table[0]["nse_rot"] is None
+    assert (tmp_path / "t.csv").read_text().splitlines()[0].startswith("variant,sequence,roe_deg")

@@ -14,13 +14,84 @@ def _root() -> None:
 
 @app.command()
 def demo(
-    duration: float = typer.Option(60.0, help="length of the simulated sequence, s"),
-    seed: int = typer.Option(0, help="simulator seed"),
+    out: str = typer.Option("airimu-demo", help="folder for the demo's run, exports, tables and recording"),
+    seeds: int = typer.Option(10, help="GPS noise seeds per setting and rate"),
+    epochs: int = typer.Option(None, help="override the demo model's training epochs"),
+    progress: bool = typer.Option(True, help="show progress bars"),
 ) -> None:
-    """Run the main job on the embedded simulator (no files needed)."""
-    from fusion.demo import run_demo
+    """The main job on the embedded simulator (no files needed): train a small AirIMU model, export, run the PGO
+    ablation at 1 Hz and 0.1 Hz GPS, print the tables, write demo.rrd and demo.png."""
+    import dataclasses
+    from pathlib import Path
 
-    run_demo(duration_s=duration, seed=seed)
+    from fusion.config import load_pgo_config
+
+    folder = Path(out)
+    config = load_pgo_config(Path(__file__).resolve().parent.parent / "configs" / "pgo_demo.yaml")
+    config = dataclasses.replace(
+        config, run=str(folder / "run"), options=dataclasses.replace(config.options, seeds=seeds)
+    )
+    _run_pgo(config, folder, folder / "ablation.json", folder / "ablation.csv", folder / "demo.rrd",
+             folder / "demo.png", epochs, progress)  # fmt: skip
+
+
+@app.command("ablate-pgo")
+def ablate_pgo(
+    config: str = typer.Option(..., help="PGO ablation config (YAML), e.g. configs/pgo_euroc.yaml"),
+    out: str = typer.Option("runs/ablate-pgo", help="folder for the exports"),
+    json_out: str = typer.Option(None, "--json", help="write the table to this JSON file"),
+    csv_out: str = typer.Option(None, "--csv", help="write the table to this CSV file"),
+    rrd: str = typer.Option(None, help="write a Rerun recording of the first sequence"),
+    png: str = typer.Option(None, help="write a PNG of the first sequence's trajectories"),
+    data_root: str = typer.Option(None, help="folder the experiment's sequence paths are relative to"),
+    epochs: int = typer.Option(None, help="override the model's training epochs (if it still trains)"),
+    progress: bool = typer.Option(True, help="show progress bars"),
+) -> None:
+    """The paper's PGO ablation: raw/AirIMU samples x fixed/learned covariance, GPS at each rate, ATE mean +- std."""
+    from fusion.config import load_pgo_config
+
+    _run_pgo(load_pgo_config(config), out, json_out, csv_out, rrd, png, epochs, progress, data_root)
+
+
+def _run_pgo(config, out, json_out, csv_out, rrd, png, epochs, progress, data_root=None) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    from fusion.pipeline import ablate_pgo as run
+    from fusion.pipeline import plot, record, write_table
+
+    console = Console()
+    results = run(config, out, progress=progress, data_root=data_root, epochs=epochs)
+    rows = [row for result in results for row in result.rows]
+    columns = sorted({(r.sequence, r.gps_hz) for r in rows}, key=lambda c: (c[0], -c[1]))
+    table = Table(title=f"{config.name}: ATE (m), mean +- std over {config.options.seeds} GPS seeds")
+    table.add_column("Setting")
+    for sequence, rate in columns:
+        table.add_column(f"{sequence} @ {rate:g} Hz")
+    for setting in dict.fromkeys(r.setting for r in rows):
+        cells = {(r.sequence, r.gps_hz): r for r in rows if r.setting == setting}
+        table.add_row(setting, *(f"{cells[c].ate_mean_m:.3f} +- {cells[c].ate_std_m:.3f}" for c in columns))
+    console.print(table)
+    write_table(rows, json_out, csv_out)
+    written = [p for p in (json_out, csv_out) if p]
+    if rrd:
+        written.append(record(results[0], rrd))
+    if png:
+        written.append(plot(results[0], png))
+    for path in written:
+        console.print(f"written: {path}")
+
+
+@app.command()
+def view(recording: str = typer.Argument(..., help="an .rrd written by demo/ablate-pgo --rrd")) -> None:
+    """Open a recording in the Rerun viewer."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    if not Path(recording).is_file():
+        raise typer.BadParameter(f"{recording}: no such recording")
+    raise typer.Exit(subprocess.call([sys.executable, "-m", "rerun", recording]))
 
 
 METRIC_COLUMNS = (

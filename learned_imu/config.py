@@ -90,6 +90,7 @@ class TrainConfig:
     plateau_factor: float = 0.5  # ReduceLROnPlateau on the validation loss
     plateau_patience: int = 5
     early_stop_patience: int = 0  # stop after this many epochs without a better validation loss; 0 = never
+    calibration_steps: int = 200  # second stage: noise decoders alone on the NLL (0 = off; see train.py)
     remove_gravity: bool = False  # network input acc + R_gt^T g (official option; needs ground truth)
     seed: int = 0
 

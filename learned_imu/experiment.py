@@ -6,7 +6,9 @@ A run folder holds:
 - ``metrics.jsonl``: one JSON line per epoch: ``epoch``, ``train_loss``, ``val_loss``, ``lr``, ``seconds``
   (wall time since the run began, summed over resumptions) and the validation metrics ``val_roe_deg``,
   ``val_p_rmse_m`` (means over the validation sequences at the configured interval);
-- ``last.pt`` after every epoch and ``best.pt`` at the best validation loss (``learned_imu.checkpoint``).
+- ``last.pt`` after every epoch and ``best.pt`` at the best validation loss (``learned_imu.checkpoint``); when
+  training ends, the noise decoders of ``best.pt`` are calibrated (``train.calibrate_uncertainty``,
+  ``train.calibration_steps``) and it is marked ``calibrated``.
 
 Running again on the same folder resumes from ``last.pt`` (same config required, except ``RESUMABLE_CHANGES``)
 and continues the metrics log;
@@ -33,13 +35,13 @@ from learned_imu.io import atomic_file
 from learned_imu.losses import LossWeights
 from learned_imu.model import AirImuNet, Correction, correct_sequence
 from learned_imu.sequence import ImuSequence
-from learned_imu.train import Trainer
+from learned_imu.train import Trainer, calibrate_uncertainty
 from learned_imu.windows import Windows, concat_windows, make_windows
 
 log = logging.getLogger(__name__)
 SIMULATOR = "simulator"
 # keys that may differ when resuming: the data may move, and the epoch budget may grow
-RESUMABLE_CHANGES = ("data.root", "train.epochs", "train.early_stop_patience")
+RESUMABLE_CHANGES = ("data.root", "train.epochs", "train.early_stop_patience", "train.calibration_steps")
 
 
 @dataclass(frozen=True)
@@ -120,10 +122,11 @@ def train_run(config: ExperimentConfig, folder: str | Path, progress: bool = Tru
     t = config.train
     torch.manual_seed(t.seed)
     model = build_model(config.model)
+    use_cov = config.loss.covariance > 0
     trainer = Trainer(
         model, build_windows(train_seqs, config, t.stride or None), build_windows(val_seqs, config, None),
         batch_size=t.batch_size, lr=t.lr, weight_decay=t.weight_decay, weights=loss_weights(config),
-        use_covariance=config.loss.covariance > 0, plateau_factor=t.plateau_factor, plateau_patience=t.plateau_patience,
+        use_covariance=use_cov, plateau_factor=t.plateau_factor, plateau_patience=t.plateau_patience,
         seed=t.seed,
     )  # fmt: skip
     history, best = _resume(folder, cfg_dict, trainer)
@@ -142,7 +145,22 @@ def train_run(config: ExperimentConfig, folder: str | Path, progress: bool = Tru
         save_checkpoint(folder / "last.pt", cfg_dict, trainer.state_dict(), best)
         _write_metrics(folder / "metrics.jsonl", history)
         log.info("%s epoch %d: %s", config.name, entry["epoch"], json.dumps(entry))
+    if use_cov and t.calibration_steps > 0 and not best.get("calibrated", False):
+        _calibrate_best(folder, cfg_dict, trainer, best, t)
     return RunSummary(folder, trainer.epochs_done, int(best["epoch"]), best["val_loss"], best["seconds"])
+
+
+def _calibrate_best(folder: Path, cfg_dict: dict, trainer: Trainer, best: dict, t) -> None:
+    """Second stage on the best checkpoint (``train.calibrate_uncertainty``); marks it ``calibrated``."""
+    state = load_checkpoint(folder / "best.pt")["trainer"]
+    trainer.model.load_state_dict(state["model"])
+    nll = calibrate_uncertainty(trainer.model, trainer.train, t.calibration_steps, t.batch_size, seed=t.seed)
+    state["model"] = trainer.model.state_dict()
+    best = {**best, "calibrated": True, "calibration_nll": nll}
+    save_checkpoint(folder / "best.pt", cfg_dict, state, best)
+    last = load_checkpoint(folder / "last.pt")
+    save_checkpoint(folder / "last.pt", cfg_dict, last["trainer"], best)
+    log.info("calibrated the noise decoders of %s (NLL %.4f)", folder / "best.pt", nll)
 
 
 def _resume(folder: Path, cfg_dict: dict, trainer: Trainer) -> tuple[list[dict], dict]:

@@ -27,14 +27,17 @@ def test_help_lists_commands_without_importing_torch_gtsam_or_rerun():
     assert "HEAVY: []" in out
 
 
-def test_demo_runs_through_the_console_script():
+def test_demo_runs_through_the_console_script(tmp_path):
     script = Path(sys.executable).with_name("airimu")
     env = {**os.environ, "COLUMNS": "200"}  # no line wrapping by rich
-    run = subprocess.run([str(script), "demo", "--duration", "6"], check=True, capture_output=True, text=True, env=env)
-    out = run.stdout
-    assert "windows of 1 s preintegrated with covariance" in out
-    ratio = float(out.split("PreintegratedImuMeasurements (first window): ")[1].split()[0])
-    assert ratio < 0.01  # our covariance equals GTSAM's within 1 %
+    args = [str(script), "demo", "--out", str(tmp_path / "demo"), "--seeds", "1", "--epochs", "1", "--no-progress"]
+    out = subprocess.run(args, check=True, capture_output=True, text=True, env=env, cwd=tmp_path).stdout
+    assert "AirIMU + learned cov" in out and "@ 0.1 Hz" in out
+    for name in ("ablation.json", "ablation.csv", "demo.rrd", "demo.png"):
+        assert f"written: {tmp_path / 'demo' / name}" in out.replace("\n", ""), name
+        assert (tmp_path / "demo" / name).stat().st_size > 0
+    rows = json.loads((tmp_path / "demo" / "ablation.json").read_text())
+    assert len(rows) == 8 and {r["gps_hz"] for r in rows} == {1.0, 0.1}
 
 
 def test_evaluate_writes_the_issue_keys(shared_data, tmp_path):

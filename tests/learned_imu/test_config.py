@@ -9,7 +9,8 @@ import pytest
 from learned_imu.config import ExperimentConfig, from_dict, load_config, to_dict
 from learned_imu.errors import ConfigError
 
-CONFIGS = sorted((Path(__file__).parents[2] / "configs").glob("*.yaml"))
+CONFIGS = sorted(p for p in (Path(__file__).parents[2] / "configs").glob("*.yaml") if not p.name.startswith("pgo_"))
+PGO_CONFIGS = sorted((Path(__file__).parents[2] / "configs").glob("pgo_*.yaml"))
 MINIMAL = "name: t\ndata:\n  train: [{dataset: simulator}]\n  val: [{dataset: simulator}]\n"
 
 
@@ -26,6 +27,16 @@ def test_shipped_configs_load_and_point_at_existing_data(shared_data):
         for spec in config.data.train + config.data.val + config.data.evaluate:
             if spec.dataset != "simulator":
                 assert (Path(config.data.root) / spec.path).exists(), (path, spec.path)
+
+
+def test_shipped_pgo_configs_load_and_name_an_experiment():
+    from fusion.config import load_pgo_config
+
+    assert {"pgo_demo.yaml", "pgo_euroc.yaml"} <= {p.name for p in PGO_CONFIGS}
+    for path in PGO_CONFIGS:
+        config = load_pgo_config(path)
+        assert Path(config.experiment).is_file() and config.options.gps_hz == (1.0, 0.1)
+        assert config.options.seeds == 10 and config.options.gps_sigma_m == 0.1
 
 
 def test_round_trip_and_defaults(tmp_path):

@@ -35,7 +35,7 @@ TINY = ExperimentConfig(
     name="tiny",
     data=DataConfig(train=(sim(1), sim(2)), val=(sim(3, 8.0),)),
     model=ModelConfig(conv_channels=(8, 16), gru_sizes=(16,), decoder_hidden=16),
-    train=TrainConfig(window=200, every=50, batch_size=4, epochs=4, lr=3e-3, seed=0),
+    train=TrainConfig(window=200, every=50, batch_size=4, epochs=4, lr=3e-3, calibration_steps=20, seed=0),
 )
 
 

@@ -1,0 +1,193 @@
+"""IMU + GPS pose graph: keyframe states, learned preintegration factors, GPS factors, a prior; solved by LM.
+
+Pipeline (each step one call): load the export (``factors.load_export``) -> preintegration factors between
+consecutive keyframes -> GPS factors at the keyframes nearest to each fix -> a prior on the first state ->
+initial values -> ``gtsam.LevenbergMarquardtOptimizer`` -> a typed ``Trajectory``.
+
+Keys: ``X(k)`` (``Pose3``, world <- IMU), ``V(k)`` (world-frame velocity, m/s) for keyframe k, as
+``gtsam.ImuFactor`` uses them. The exported deltas are already corrected, so no bias state is estimated: with the
+default ``backend="gtsam"`` every ``gtsam.ImuFactor`` (C++, the same residual as ``factors.LearnedImuFactor``)
+shares one bias key ``B(0)`` held at zero by a ``NonlinearEquality`` (a hard constraint, not a tight prior that would
+ill-condition the marginals); ``backend="custom"`` uses ``LearnedImuFactor``
+without a bias key.
+
+Initial values: positions interpolated between the GPS fixes (linear), velocities their finite differences,
+rotations dead-reckoned from the exported rotation deltas -- robust where hours of raw IMU dead reckoning are not.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import gtsam
+import numpy as np
+
+from factors import Export, GpsFactor, check_values, from_export, gps_noise, load_export
+from learned_imu.io import atomic_file
+
+X, V, B = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V, gtsam.symbol_shorthand.B
+
+
+@dataclass(frozen=True)
+class Gps:
+    """GPS fixes on the IMU clock: ``t`` (M,) s, ``pos`` (M, 3) antenna position in the world frame, m, and
+    ``sigma`` (M, 3) one-sigma noise per axis, m (a standard deviation, not a variance)."""
+
+    t: np.ndarray
+    pos: np.ndarray
+    sigma: np.ndarray
+
+
+@dataclass(frozen=True)
+class FusionSettings:
+    """Graph and solver options (``configs/pgo_*.yaml``'s ``fusion`` block)."""
+
+    backend: str = "gtsam"  # "gtsam" (C++ ImuFactor) or "custom" (factors.LearnedImuFactor)
+    gps_robust: str | None = None  # None, "huber" or "cauchy"
+    lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # antenna in the IMU frame
+    prior_rot_sigma_rad: float = 0.01
+    prior_pos_sigma_m: float = 0.1
+    prior_vel_sigma_m_s: float = 0.1
+    max_iterations: int = 100
+    relative_error_tol: float = 1e-6
+    absolute_error_tol: float = 1e-6
+
+
+@dataclass(frozen=True, eq=False)
+class Trajectory:
+    """A trajectory at the keyframes: ``t`` (K,) s; ``rot`` (K, 3, 3) world <- IMU; ``pos`` (K, 3) m; ``vel``
+    (K, 3) m/s; ``pos_cov`` (K, 3, 3) marginal position covariance, m^2, world frame (None if not computed)."""
+
+    t: np.ndarray
+    rot: np.ndarray
+    pos: np.ndarray
+    vel: np.ndarray
+    pos_cov: np.ndarray | None = None
+
+    def write_tum(self, path: str | Path) -> Path:
+        """TUM format (``t x y z qx qy qz qw``, quaternion world <- IMU, scalar last) for ``evo_ape tum``."""
+        quat = np.array([gtsam.Rot3(r).toQuaternion().coeffs() for r in self.rot])  # Eigen order x, y, z, w
+        rows = np.column_stack([self.t, self.pos, quat])
+        with atomic_file(path) as f:
+            f.write("# timestamp tx ty tz qx qy qz qw\n")
+            np.savetxt(f, rows, fmt="%.9f")
+        return Path(path)
+
+
+@dataclass(frozen=True, eq=False)
+class Solution:
+    """The solved graph: the trajectory, and the graph and values (for ``gtsam.Marginals``)."""
+
+    trajectory: Trajectory
+    graph: gtsam.NonlinearFactorGraph
+    values: gtsam.Values
+    iterations: int
+    final_error: float
+
+
+def build_graph(
+    export: Export | str | Path, gps: Gps, settings: FusionSettings | None = None, initial_state=None
+) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+    """The pose graph of an export and GPS fixes, and its initial values (see the module docstring).
+
+    ``initial_state`` = (rot (3, 3), pos (3,), vel (3,)) anchors the prior on keyframe 0; default: the export's
+    ground truth at the first keyframe if it has one, else the GPS-interpolated position, level attitude.
+    """
+    settings = settings or FusionSettings()
+    export = export if isinstance(export, Export) else load_export(export)
+    graph = gtsam.NonlinearFactorGraph()
+    bias_key = (lambda k: B(0)) if settings.backend == "gtsam" else None
+    imu_factors, times = from_export(export.path, X, V, bias_key, settings.backend)
+    for factor in imu_factors:
+        graph.add(factor)
+    if settings.backend == "gtsam":
+        graph.add(gtsam.NonlinearEqualityConstantBias(B(0), gtsam.imuBias.ConstantBias()))
+
+    keyframe = _nearest_keyframes(times, gps.t)
+    for index, pos, sigma in zip(keyframe, gps.pos, gps.sigma, strict=True):
+        if index >= 0:
+            graph.add(GpsFactor(X(index), pos, gps_noise(sigma, settings.gps_robust), settings.lever_arm_m))
+    if not np.any(keyframe >= 0):
+        raise ValueError(f"{export.path}: no GPS fix lies within half a keyframe interval of a keyframe")
+
+    values = _initial_values(export, times, gps, initial_state)
+    rot0, pos0, vel0 = values.atPose3(X(0)).rotation(), values.atPose3(X(0)).translation(), values.atVector(V(0))
+    prior = [settings.prior_rot_sigma_rad] * 3 + [settings.prior_pos_sigma_m] * 3
+    graph.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(rot0, pos0), _sigmas(prior)))
+    graph.add(gtsam.PriorFactorVector(V(0), vel0, _sigmas([settings.prior_vel_sigma_m_s] * 3)))
+    if settings.backend == "gtsam":
+        values.insert(B(0), gtsam.imuBias.ConstantBias())
+    check_values(graph, values)
+    return graph, values
+
+
+def solve(
+    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, times: np.ndarray, settings: FusionSettings | None = None
+) -> Solution:
+    """Levenberg-Marquardt on the graph; the keyframe states as a ``Trajectory``."""
+    settings = settings or FusionSettings()
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(settings.max_iterations)
+    params.setRelativeErrorTol(settings.relative_error_tol)
+    params.setAbsoluteErrorTol(settings.absolute_error_tol)
+    optimiser = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+    result = optimiser.optimize()
+    return Solution(trajectory_of(result, times), graph, result, optimiser.iterations(), graph.error(result))
+
+
+def trajectory_of(values: gtsam.Values, times: np.ndarray, marginals: gtsam.Marginals | None = None) -> Trajectory:
+    """Keyframe states X(k), V(k) of ``values`` (and position marginals if ``marginals`` is given)."""
+    poses = [values.atPose3(X(k)) for k in range(len(times))]
+    pos_cov = None
+    if marginals is not None:  # Pose3 tangent is [rotation, translation]; translation in the body frame
+        pos_cov = np.array(
+            [p.rotation().matrix() @ marginals.marginalCovariance(X(k))[3:, 3:] @ p.rotation().matrix().T
+             for k, p in enumerate(poses)]
+        )  # fmt: skip
+    return Trajectory(
+        t=np.asarray(times, dtype=float),
+        rot=np.array([p.rotation().matrix() for p in poses]),
+        pos=np.array([p.translation() for p in poses]),
+        vel=np.array([values.atVector(V(k)) for k in range(len(times))]),
+        pos_cov=pos_cov,
+    )
+
+
+def with_marginals(solution: Solution) -> Trajectory:
+    """The solution's trajectory with the marginal position covariance of every keyframe."""
+    marginals = gtsam.Marginals(solution.graph, solution.values)
+    return trajectory_of(solution.values, solution.trajectory.t, marginals)
+
+
+def _nearest_keyframes(times: np.ndarray, gps_t: np.ndarray) -> np.ndarray:
+    """Index of the keyframe nearest to each fix, or -1 if none lies within half a keyframe interval."""
+    index = np.clip(np.searchsorted(times, gps_t), 1, len(times) - 1)
+    index = np.where(np.abs(times[index - 1] - gps_t) <= np.abs(times[index] - gps_t), index - 1, index)
+    half = 0.5 * float(np.median(np.diff(times)))
+    return np.where(np.abs(times[index] - gps_t) <= half + 1e-9, index, -1)
+
+
+def _initial_values(export: Export, times: np.ndarray, gps: Gps, initial_state) -> gtsam.Values:
+    pos = np.column_stack([np.interp(times, gps.t, gps.pos[:, i]) for i in range(3)])
+    vel = np.gradient(pos, times, axis=0)
+    if initial_state is None and "gt_rot" in export.arrays:
+        first = int(export.keyframe_index[0])
+        initial_state = (export.arrays["gt_rot"][first], export.arrays["gt_pos"][first], export.arrays["gt_vel"][first])
+    if initial_state is not None:
+        rot0 = np.asarray(initial_state[0], dtype=float)
+        pos[0], vel[0] = initial_state[1], initial_state[2]
+    else:
+        rot0 = np.eye(3)
+    rot = [gtsam.Rot3(rot0)]
+    for delta in export.delta_rot:
+        rot.append(rot[-1].compose(gtsam.Rot3(delta)))
+    values = gtsam.Values()
+    for k in range(len(times)):
+        values.insert(X(k), gtsam.Pose3(rot[k], pos[k]))
+        values.insert(V(k), vel[k])
+    return values
+
+
+def _sigmas(values) -> gtsam.noiseModel.Diagonal:
+    return gtsam.noiseModel.Diagonal.Sigmas(np.asarray(values, dtype=float))

@@ -1,0 +1,141 @@
+"""The product's main job, stage by stage: model -> corrected IMU -> exports -> graphs -> ATE table -> recording.
+
+``ablate_pgo(config, out)`` trains the configured model (or finishes its interrupted run), corrects every
+evaluation sequence, runs the PGO ablation (``fusion.pgo``) and optionally writes a Rerun recording and a PNG of
+the first sequence.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from fusion.config import PgoConfig
+from fusion.graph import with_marginals
+from fusion.pgo import SETTINGS, PgoRow, run_sequence
+from learned_imu.checkpoint import model_from_checkpoint
+from learned_imu.config import load_config
+from learned_imu.experiment import correct, load_sequences, train_run, with_epochs
+from learned_imu.model import Correction
+from learned_imu.preintegration import NavState, predict, preintegrate
+from learned_imu.sequence import ImuSequence
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, eq=False)
+class SequenceResult:
+    """What one sequence produced: its rows, the model output, and one solution per setting (first rate, seed 0)."""
+
+    sequence: ImuSequence
+    correction: Correction
+    rows: list[PgoRow]
+    examples: dict
+
+
+def ablate_pgo(
+    config: PgoConfig,
+    out: str | Path,
+    progress: bool = True,
+    data_root: str | Path | None = None,
+    epochs: int | None = None,
+) -> list[SequenceResult]:
+    """Run the PGO ablation of ``config`` (see the module docstring); exports go to ``out/exports``."""
+    out = Path(out)
+    experiment = load_config(config.experiment, data_root=data_root)
+    if epochs:
+        experiment = with_epochs(experiment, epochs)
+    run = Path(config.run)
+    train_run(experiment, run, progress=progress)  # resumes an interrupted run; returns at once if finished
+    model, _ = model_from_checkpoint(run / "best.pt")
+    specs = config.sequences or experiment.data.evaluate or experiment.data.val
+    results = []
+    for sequence in load_sequences(specs, experiment.data.root):
+        correction = correct(model, sequence, experiment.train.remove_gravity)
+        rows, examples = run_sequence(sequence, correction, out / "exports", config.options, config.fusion)
+        results.append(SequenceResult(sequence, correction, rows, examples))
+    return results
+
+
+def dead_reckoning(sequence: ImuSequence, gyro: np.ndarray, acc: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """(K, 3) positions at ``times`` of the IMU integrated from the ground-truth state at the first sample."""
+    as_t = torch.as_tensor
+    pre = preintegrate(as_t(gyro), as_t(acc), as_t(sequence.dt))
+    gt = sequence.gt
+    start = NavState(as_t(gt.rot[0]), as_t(gt.vel[0]), as_t(gt.pos[0]))
+    pos = np.concatenate([gt.pos[:1], predict(start, pre, as_t(sequence.gravity)).pos.numpy()[:-1]])
+    index = np.clip(np.searchsorted(sequence.t, times), 0, len(sequence) - 1)
+    return pos[index]
+
+
+def record(result: SequenceResult, path: str | Path) -> Path:
+    """A Rerun recording of one sequence: truth, raw and AirIMU dead reckoning, GPS, fused tracks with
+    covariance ellipsoids, IMU series, corrections and learned sigmas."""
+    from fusion.recording import ImuSeries, Track, write_recording
+
+    seq, c = result.sequence, result.correction
+    any_solution = next(iter(result.examples.values()))[0]
+    times = any_solution.trajectory.t
+    tracks, truth = [], None
+    if seq.gt is not None:
+        truth = Track("ground truth", seq.t, seq.gt.pos)
+        tracks += [
+            truth,
+            Track("raw", times, dead_reckoning(seq, seq.gyro, seq.acc, times)),
+            Track("airimu", times, dead_reckoning(seq, c.gyro.numpy(), c.acc.numpy(), times)),
+        ]
+    fused = []
+    for setting in SETTINGS:
+        if setting.name in result.examples:
+            trajectory = with_marginals(result.examples[setting.name][0])
+            fused.append(Track(setting.name, trajectory.t, trajectory.pos, trajectory.pos_cov))
+    gps = next(iter(result.examples.values()))[1]
+    imu = ImuSeries(seq.t, seq.gyro, seq.acc, c.d_gyro.numpy(), c.d_acc.numpy(), c.gyro_cov.numpy(), c.acc_cov.numpy())
+    return write_recording(path, tracks, fused, (gps.t, gps.pos), imu, truth)
+
+
+def plot(result: SequenceResult, path: str | Path) -> Path:
+    """A PNG of the trajectories (top view): ground truth, GPS and every fused setting."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib import pyplot as plt
+
+    from learned_imu.io import atomic_file
+
+    seq = result.sequence
+    fig, ax = plt.subplots(figsize=(8, 7))
+    if seq.gt is not None:
+        ax.plot(seq.gt.pos[:, 0], seq.gt.pos[:, 1], "k-", lw=2, label="ground truth")
+    for name, (solution, _) in result.examples.items():
+        pos = solution.trajectory.pos
+        ax.plot(pos[:, 0], pos[:, 1], lw=1, label=name)
+    gps = next(iter(result.examples.values()))[1]
+    ax.plot(gps.pos[:, 0], gps.pos[:, 1], "r.", ms=4, label="GPS (fused)")
+    ax.set(xlabel="x (m)", ylabel="y (m)", title=f"{seq.name}: IMU + GPS pose graph", aspect="equal")
+    ax.legend(fontsize=8)
+    with atomic_file(path, "wb") as f:
+        fig.savefig(f, format="png", dpi=120)
+    plt.close(fig)
+    return Path(path)
+
+
+def write_table(rows: list[PgoRow], json_path: str | Path | None = None, csv_path: str | Path | None = None) -> None:
+    """The ablation rows as JSON (keys setting, gps_hz, sequence, ate_mean_m, ate_std_m) and/or CSV, atomically."""
+    import csv
+    from dataclasses import asdict
+
+    from learned_imu.io import atomic_file, write_json_atomic
+
+    records = [asdict(r) for r in rows]
+    if json_path:
+        write_json_atomic(json_path, records)
+    if csv_path:
+        with atomic_file(csv_path) as f:
+            writer = csv.DictWriter(f, fieldnames=list(records[0]))
+            writer.writeheader()
+            writer.writerows(records)

@@ -27,6 +27,7 @@ from learned_imu.preintegration import preintegrate
 from learned_imu.sequence import ImuSequence
 
 FORMAT_VERSION = 1
+SAMPLES_PER_CALL = 100_000  # samples preintegrated per batched call (about 0.5 GB of float64 intermediates)
 
 
 def keyframes_every(sequence: ImuSequence, interval_s: float) -> np.ndarray:
@@ -72,17 +73,11 @@ def export_preintegration(
     }
     lengths = np.diff(keyframe_index)
     for length in np.unique(lengths):
-        which = np.flatnonzero(lengths == length)
-        take = keyframe_index[which][:, None] + np.arange(length)[None, :]  # samples from keyframe k to k + 1
-        pre = preintegrate(
-            *(torch.as_tensor(x[take]) for x in (gyro, acc, dt, gyro_cov, acc_cov)), at=-1, bias_jacobian=True
-        )
-        out["delta_rot"][which] = pre.rot[:, -1].numpy()
-        out["delta_pos"][which] = pre.pos[:, -1].numpy()
-        out["delta_vel"][which] = pre.vel[:, -1].numpy()
-        out["delta_dt"][which] = pre.dt[:, -1].numpy()
-        out["delta_cov"][which] = pre.cov[:, -1].numpy()
-        out["bias_jacobian"][which] = pre.bias_jacobian[:, -1].numpy()
+        same = np.flatnonzero(lengths == length)
+        per_call = max(1, SAMPLES_PER_CALL // int(length))  # bounds the memory of one batched call
+        for first in range(0, len(same), per_call):
+            _integrate_intervals(out, same[first : first + per_call], int(length), keyframe_index,
+                                 (gyro, acc, dt, gyro_cov, acc_cov))  # fmt: skip
 
     arrays = {
         "format_version": np.array(FORMAT_VERSION),
@@ -103,6 +98,18 @@ def export_preintegration(
     with atomic_file(path, "wb") as f:
         np.savez(f, **arrays)
     return Path(path)
+
+
+def _integrate_intervals(out: dict, which: np.ndarray, length: int, keyframe_index: np.ndarray, samples) -> None:
+    """Preintegrate the intervals ``which`` (all ``length`` samples long) in one batched call into ``out``."""
+    take = keyframe_index[which][:, None] + np.arange(length)[None, :]  # samples from keyframe k to k + 1
+    pre = preintegrate(*(torch.as_tensor(x[take]) for x in samples), at=-1, bias_jacobian=True)
+    out["delta_rot"][which] = pre.rot[:, -1].numpy()
+    out["delta_pos"][which] = pre.pos[:, -1].numpy()
+    out["delta_vel"][which] = pre.vel[:, -1].numpy()
+    out["delta_dt"][which] = pre.dt[:, -1].numpy()
+    out["delta_cov"][which] = pre.cov[:, -1].numpy()
+    out["bias_jacobian"][which] = pre.bias_jacobian[:, -1].numpy()
 
 
 def keyframes_from_spec(sequence: ImuSequence, spec: str) -> np.ndarray:

@@ -11,8 +11,9 @@ shares one bias key ``B(0)`` held at zero by a ``NonlinearEquality`` (a hard con
 ill-condition the marginals); ``backend="custom"`` uses ``LearnedImuFactor``
 without a bias key.
 
-Initial values: positions interpolated between the GPS fixes (linear), velocities their finite differences,
-rotations dead-reckoned from the exported rotation deltas -- robust where hours of raw IMU dead reckoning are not.
+Initial values are solved window by window (``FusionSettings.init_window`` keyframes, each window started from the
+previous one's solution and predicted through the IMU deltas), so the global LM starts near its optimum even
+after hours, where dead reckoning of the whole sequence would drift by hundreds of degrees.
 """
 
 from __future__ import annotations
@@ -52,6 +53,7 @@ class FusionSettings:
     max_iterations: int = 100
     relative_error_tol: float = 1e-6
     absolute_error_tol: float = 1e-6
+    init_window: int = 100  # keyframes per window of the sequential initialisation
 
 
 @dataclass(frozen=True, eq=False)
@@ -105,19 +107,24 @@ def build_graph(
         graph.add(gtsam.NonlinearEqualityConstantBias(B(0), gtsam.imuBias.ConstantBias()))
 
     keyframe = _nearest_keyframes(times, gps.t)
+    gps_factors: dict[int, list] = {}
     for index, pos, sigma in zip(keyframe, gps.pos, gps.sigma, strict=True):
         if index >= 0:
-            graph.add(GpsFactor(X(index), pos, gps_noise(sigma, settings.gps_robust), settings.lever_arm_m))
-    if not np.any(keyframe >= 0):
+            factor = GpsFactor(X(index), pos, gps_noise(sigma, settings.gps_robust), settings.lever_arm_m)
+            graph.add(factor)
+            gps_factors.setdefault(int(index), []).append(factor)
+    if not gps_factors:
         raise ValueError(f"{export.path}: no GPS fix lies within half a keyframe interval of a keyframe")
 
-    values = _initial_values(export, times, gps, initial_state)
-    rot0, pos0, vel0 = values.atPose3(X(0)).rotation(), values.atPose3(X(0)).translation(), values.atVector(V(0))
+    pose0, vel0 = _first_state(export, times, gps, initial_state)
     prior = [settings.prior_rot_sigma_rad] * 3 + [settings.prior_pos_sigma_m] * 3
-    graph.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(rot0, pos0), _sigmas(prior)))
-    graph.add(gtsam.PriorFactorVector(V(0), vel0, _sigmas([settings.prior_vel_sigma_m_s] * 3)))
-    if settings.backend == "gtsam":
-        values.insert(B(0), gtsam.imuBias.ConstantBias())
+    priors = [
+        gtsam.PriorFactorPose3(X(0), pose0, _sigmas(prior)),
+        gtsam.PriorFactorVector(V(0), vel0, _sigmas([settings.prior_vel_sigma_m_s] * 3)),
+    ]
+    for factor in priors:
+        graph.add(factor)
+    values = _sequential_initial_values(export, imu_factors, gps_factors, priors, (pose0, vel0), settings)
     check_values(graph, values)
     return graph, values
 
@@ -168,24 +175,65 @@ def _nearest_keyframes(times: np.ndarray, gps_t: np.ndarray) -> np.ndarray:
     return np.where(np.abs(times[index] - gps_t) <= half + 1e-9, index, -1)
 
 
-def _initial_values(export: Export, times: np.ndarray, gps: Gps, initial_state) -> gtsam.Values:
-    pos = np.column_stack([np.interp(times, gps.t, gps.pos[:, i]) for i in range(3)])
-    vel = np.gradient(pos, times, axis=0)
+def _first_state(export: Export, times: np.ndarray, gps: Gps, initial_state) -> tuple[gtsam.Pose3, np.ndarray]:
+    """The prior's state: ``initial_state``, else the export's ground truth, else GPS position, level attitude."""
     if initial_state is None and "gt_rot" in export.arrays:
         first = int(export.keyframe_index[0])
         initial_state = (export.arrays["gt_rot"][first], export.arrays["gt_pos"][first], export.arrays["gt_vel"][first])
     if initial_state is not None:
-        rot0 = np.asarray(initial_state[0], dtype=float)
-        pos[0], vel[0] = initial_state[1], initial_state[2]
-    else:
-        rot0 = np.eye(3)
-    rot = [gtsam.Rot3(rot0)]
-    for delta in export.delta_rot:
-        rot.append(rot[-1].compose(gtsam.Rot3(delta)))
+        rot, pos, vel = (np.asarray(x, dtype=float) for x in initial_state)
+        return gtsam.Pose3(gtsam.Rot3(rot), pos), vel
+    pos = np.array([np.interp(times[:2], gps.t, gps.pos[:, i]) for i in range(3)]).T
+    return gtsam.Pose3(gtsam.Rot3(), pos[0]), (pos[1] - pos[0]) / (times[1] - times[0])
+
+
+def _sequential_initial_values(export: Export, imu_factors, gps_factors, priors, first, settings) -> gtsam.Values:
+    """Initial values solved window by window (``settings.init_window`` keyframes): each window starts from the
+    previous one's solved end state, predicts through its IMU deltas, and is solved with its GPS factors and a
+    prior on its first state. The global LM then starts close to its solution even after hours of drift."""
+    n = len(imu_factors) + 1
+    g = export.gravity
     values = gtsam.Values()
-    for k in range(len(times)):
-        values.insert(X(k), gtsam.Pose3(rot[k], pos[k]))
-        values.insert(V(k), vel[k])
+    pose, vel = first
+    start = 0
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(settings.max_iterations)
+    params.setRelativeErrorTol(settings.relative_error_tol)
+    params.setAbsoluteErrorTol(settings.absolute_error_tol)
+    while start < n - 1:
+        end = min(start + settings.init_window, n - 1)
+        window, guess = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        guess.insert(X(start), pose)
+        guess.insert(V(start), vel)
+        for k in range(start, end):  # predict: the IMU deltas from the window's first state
+            dt, rot = export.delta_dt[k], pose.rotation().matrix()
+            p = pose.translation() + vel * dt + 0.5 * g * dt**2 + rot @ export.delta_pos[k]
+            vel = vel + g * dt + rot @ export.delta_vel[k]
+            pose = gtsam.Pose3(pose.rotation().compose(gtsam.Rot3(export.delta_rot[k])), p)
+            guess.insert(X(k + 1), pose)
+            guess.insert(V(k + 1), vel)
+            window.add(imu_factors[k])
+        fixes = [f for k in range(start, end + 1) for f in gps_factors.get(k, [])]
+        for factor in fixes:
+            window.add(factor)
+        if start == 0:
+            for factor in priors:
+                window.add(factor)
+        else:  # hold the window's first state near the previous window's solution
+            window.add(gtsam.PriorFactorPose3(X(start), guess.atPose3(X(start)), _sigmas([1e-3] * 6)))
+            window.add(gtsam.PriorFactorVector(V(start), guess.atVector(V(start)), _sigmas([1e-3] * 3)))
+        if settings.backend == "gtsam":
+            window.add(gtsam.NonlinearEqualityConstantBias(B(0), gtsam.imuBias.ConstantBias()))
+            guess.insert(B(0), gtsam.imuBias.ConstantBias())
+        solved = gtsam.LevenbergMarquardtOptimizer(window, guess, params).optimize() if fixes else guess
+        for k in range(start, end + 1):
+            if not values.exists(X(k)):
+                values.insert(X(k), solved.atPose3(X(k)))
+                values.insert(V(k), solved.atVector(V(k)))
+        pose, vel = solved.atPose3(X(end)), solved.atVector(V(end))
+        start = end
+    if settings.backend == "gtsam":
+        values.insert(B(0), gtsam.imuBias.ConstantBias())
     return values
 
 

@@ -11,9 +11,11 @@ shares one bias key ``B(0)`` held at zero by a ``NonlinearEquality`` (a hard con
 ill-condition the marginals); ``backend="custom"`` uses ``LearnedImuFactor``
 without a bias key.
 
-Initial values are solved window by window (``FusionSettings.init_window`` keyframes, each window started from the
-previous one's solution and predicted through the IMU deltas), so the global LM starts near its optimum even
-after hours, where dead reckoning of the whole sequence would drift by hundreds of degrees.
+Initial values: of two guesses, the one with the lower graph error -- positions interpolated between the GPS fixes
+with rotations dead-reckoned from the deltas (robust for a strongly biased IMU over short spans), or a solution
+window by window (``FusionSettings.init_window`` keyframes, each window started from the previous one's solution
+and predicted through the IMU deltas: robust after hours, where the dead-reckoned attitude drifts by hundreds of
+degrees).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from factors import Export, GpsFactor, check_values, from_export, gps_noise, loa
 from learned_imu.io import atomic_file
 
 X, V, B = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V, gtsam.symbol_shorthand.B
+MIN_FIXES_PER_WINDOW = 3  # GPS fixes per window of the sequential initialisation
 
 
 @dataclass(frozen=True)
@@ -124,9 +127,15 @@ def build_graph(
     ]
     for factor in priors:
         graph.add(factor)
-    values = _sequential_initial_values(export, imu_factors, gps_factors, priors, (pose0, vel0), settings)
-    check_values(graph, values)
-    return graph, values
+    # two guesses, the one the graph likes better wins: GPS-interpolated positions (robust to a strongly biased IMU
+    # over short spans) or the window-by-window solution (robust to hours of attitude drift)
+    candidates = [
+        _interpolated_values(export, times, gps, (pose0, vel0), settings),
+        _sequential_initial_values(export, imu_factors, gps_factors, priors, (pose0, vel0), settings),
+    ]
+    for values in candidates:
+        check_values(graph, values)
+    return graph, min(candidates, key=graph.error)
 
 
 def solve(
@@ -187,8 +196,26 @@ def _first_state(export: Export, times: np.ndarray, gps: Gps, initial_state) -> 
     return gtsam.Pose3(gtsam.Rot3(), pos[0]), (pos[1] - pos[0]) / (times[1] - times[0])
 
 
+def _interpolated_values(export: Export, times: np.ndarray, gps: Gps, first, settings) -> gtsam.Values:
+    """Positions interpolated between the GPS fixes, velocities their differences, rotations dead-reckoned."""
+    pos = np.column_stack([np.interp(times, gps.t, gps.pos[:, i]) for i in range(3)])
+    vel = np.gradient(pos, times, axis=0)
+    pos[0], vel[0] = first[0].translation(), first[1]
+    rot = first[0].rotation()
+    values = gtsam.Values()
+    for k in range(len(times)):
+        values.insert(X(k), gtsam.Pose3(rot, pos[k]))
+        values.insert(V(k), vel[k])
+        if k < len(export.delta_rot):
+            rot = rot.compose(gtsam.Rot3(export.delta_rot[k]))
+    if settings.backend == "gtsam":
+        values.insert(B(0), gtsam.imuBias.ConstantBias())
+    return values
+
+
 def _sequential_initial_values(export: Export, imu_factors, gps_factors, priors, first, settings) -> gtsam.Values:
-    """Initial values solved window by window (``settings.init_window`` keyframes): each window starts from the
+    """Initial values solved window by window (``settings.init_window`` keyframes, or more so that a window holds
+    ``MIN_FIXES_PER_WINDOW`` GPS fixes): each window starts from the
     previous one's solved end state, predicts through its IMU deltas, and is solved with its GPS factors and a
     prior on its first state. The global LM then starts close to its solution even after hours of drift."""
     n = len(imu_factors) + 1
@@ -200,8 +227,11 @@ def _sequential_initial_values(export: Export, imu_factors, gps_factors, priors,
     params.setMaxIterations(settings.max_iterations)
     params.setRelativeErrorTol(settings.relative_error_tol)
     params.setAbsoluteErrorTol(settings.absolute_error_tol)
+    fixed = sorted(gps_factors)
+    spacing = int(np.median(np.diff(fixed))) if len(fixed) > 1 else n
+    length = max(settings.init_window, MIN_FIXES_PER_WINDOW * spacing)  # keyframes per window
     while start < n - 1:
-        end = min(start + settings.init_window, n - 1)
+        end = min(start + length, n - 1)
         window, guess = gtsam.NonlinearFactorGraph(), gtsam.Values()
         guess.insert(X(start), pose)
         guess.insert(V(start), vel)

@@ -11,11 +11,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import yaml
-
 from fusion.graph import FusionSettings
 from fusion.pgo import PgoOptions
-from learned_imu.config import SequenceConfig, from_dict
+from learned_imu.config import SequenceConfig, from_dict, read_yaml
 from learned_imu.errors import ConfigError
 
 
@@ -34,13 +32,7 @@ class PgoConfig:
 def load_pgo_config(path: str | Path) -> PgoConfig:
     """Read ``path`` (YAML); ``experiment`` is made absolute relative to the file's folder."""
     path = Path(path)
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except OSError as error:
-        raise ConfigError(f"{path}: cannot read the config: {error.strerror}") from error
-    except yaml.YAMLError as error:
-        raise ConfigError(f"{path}: not valid YAML: {error}") from error
-    config = from_dict(PgoConfig, raw, source=str(path))
+    config = from_dict(PgoConfig, read_yaml(path), source=str(path))
     experiment = Path(config.experiment)
     if not experiment.is_absolute():
         experiment = (path.parent / experiment).resolve()

@@ -143,11 +143,7 @@ def solve(
 ) -> Solution:
     """Levenberg-Marquardt on the graph; the keyframe states as a ``Trajectory``."""
     settings = settings or FusionSettings()
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(settings.max_iterations)
-    params.setRelativeErrorTol(settings.relative_error_tol)
-    params.setAbsoluteErrorTol(settings.absolute_error_tol)
-    optimiser = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+    optimiser = gtsam.LevenbergMarquardtOptimizer(graph, values, _lm_params(settings))
     result = optimiser.optimize()
     return Solution(trajectory_of(result, times), graph, result, optimiser.iterations(), graph.error(result))
 
@@ -223,10 +219,7 @@ def _sequential_initial_values(export: Export, imu_factors, gps_factors, priors,
     values = gtsam.Values()
     pose, vel = first
     start = 0
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(settings.max_iterations)
-    params.setRelativeErrorTol(settings.relative_error_tol)
-    params.setAbsoluteErrorTol(settings.absolute_error_tol)
+    params = _lm_params(settings)
     fixed = sorted(gps_factors)
     spacing = int(np.median(np.diff(fixed))) if len(fixed) > 1 else n
     length = max(settings.init_window, MIN_FIXES_PER_WINDOW * spacing)  # keyframes per window
@@ -265,6 +258,14 @@ def _sequential_initial_values(export: Export, imu_factors, gps_factors, priors,
     if settings.backend == "gtsam":
         values.insert(B(0), gtsam.imuBias.ConstantBias())
     return values
+
+
+def _lm_params(settings: FusionSettings) -> gtsam.LevenbergMarquardtParams:
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(settings.max_iterations)
+    params.setRelativeErrorTol(settings.relative_error_tol)
+    params.setAbsoluteErrorTol(settings.absolute_error_tol)
+    return params
 
 
 def _sigmas(values) -> gtsam.noiseModel.Diagonal:

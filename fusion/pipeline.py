@@ -126,16 +126,12 @@ def plot(result: SequenceResult, path: str | Path) -> Path:
 
 def write_table(rows: list[PgoRow], json_path: str | Path | None = None, csv_path: str | Path | None = None) -> None:
     """The ablation rows as JSON (keys setting, gps_hz, sequence, ate_mean_m, ate_std_m) and/or CSV, atomically."""
-    import csv
     from dataclasses import asdict
 
-    from learned_imu.io import atomic_file, write_json_atomic
+    from learned_imu.io import write_csv_atomic, write_json_atomic
 
     records = [asdict(r) for r in rows]
     if json_path:
         write_json_atomic(json_path, records)
     if csv_path:
-        with atomic_file(csv_path) as f:
-            writer = csv.DictWriter(f, fieldnames=list(records[0]))
-            writer.writeheader()
-            writer.writerows(records)
+        write_csv_atomic(csv_path, records)

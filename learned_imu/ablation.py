@@ -13,7 +13,6 @@ the mean normalised squared errors ``e^2 / sigma^2`` of rotation, position and v
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import logging
 from dataclasses import dataclass
@@ -27,7 +26,7 @@ from learned_imu.checkpoint import model_from_checkpoint
 from learned_imu.config import ExperimentConfig
 from learned_imu.evaluate import evaluate
 from learned_imu.experiment import build_windows, correct, load_sequences, train_run
-from learned_imu.io import atomic_file, write_json_atomic
+from learned_imu.io import write_csv_atomic, write_json_atomic
 from learned_imu.losses import delta_errors, normalised_squared_errors
 from learned_imu.model import AirImuNet
 from learned_imu.preintegration import preintegrate
@@ -146,10 +145,7 @@ def write_rows(rows: list[AblationRow], json_path: str | Path | None = None, csv
     if json_path:
         write_json_atomic(json_path, [{k: (None if _nan(v) else v) for k, v in r.items()} for r in records])
     if csv_path:
-        with atomic_file(csv_path) as f:
-            writer = csv.DictWriter(f, fieldnames=list(records[0]))
-            writer.writeheader()
-            writer.writerows(records)
+        write_csv_atomic(csv_path, records)
 
 
 def _nan(value) -> bool:

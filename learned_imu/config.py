@@ -118,17 +118,21 @@ class ExperimentConfig:
 def load_config(path: str | Path, data_root: str | Path | None = None) -> ExperimentConfig:
     """Read ``path`` (YAML) into an ``ExperimentConfig``; ``data.root`` is made absolute (``data_root`` wins)."""
     path = Path(path)
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except OSError as error:
-        raise ConfigError(f"{path}: cannot read the config: {error.strerror}") from error
-    except yaml.YAMLError as error:
-        raise ConfigError(f"{path}: not valid YAML: {error}") from error
-    config = from_dict(ExperimentConfig, raw, source=str(path))
+    config = from_dict(ExperimentConfig, read_yaml(path), source=str(path))
     root = Path(data_root) if data_root is not None else Path(config.data.root)
     if not root.is_absolute():
         root = (Path.cwd() if data_root is not None else path.parent) / root
     return dataclasses.replace(config, data=dataclasses.replace(config.data, root=str(root.resolve())))
+
+
+def read_yaml(path: Path):
+    """``yaml.safe_load`` of a config file; unreadable files and YAML errors are ``ConfigError``s naming it."""
+    try:
+        return yaml.safe_load(path.read_text())
+    except OSError as error:
+        raise ConfigError(f"{path}: cannot read the config: {error.strerror}") from error
+    except yaml.YAMLError as error:
+        raise ConfigError(f"{path}: not valid YAML: {error}") from error
 
 
 def from_dict(cls, data, source: str = "config", where: str = ""):

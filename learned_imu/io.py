@@ -3,6 +3,7 @@ written is ever left half-written or lost."""
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import tempfile
@@ -31,4 +32,13 @@ def write_json_atomic(path: str | Path, data) -> Path:
     with atomic_file(path) as f:
         json.dump(data, f, indent=2)
         f.write("\n")
+    return Path(path)
+
+
+def write_csv_atomic(path: str | Path, records: list[dict]) -> Path:
+    """Write dicts with the same keys as CSV (one header line) to ``path`` atomically; returns the path."""
+    with atomic_file(path) as f:
+        writer = csv.DictWriter(f, fieldnames=list(records[0]))
+        writer.writeheader()
+        writer.writerows(records)
     return Path(path)

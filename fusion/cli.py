@@ -244,6 +244,22 @@ def export(
     Console().print(f"{len(index) - 1} keyframe intervals of {sequence.name} written to {written}")
 
 
+@app.command("export-model")
+def export_model(
+    checkpoint: str = typer.Option(..., help="trained model (best.pt)"),
+    format: str = typer.Option(..., "--format", help="'torchscript' or 'onnx' (needs the deploy extra)"),
+    out: str = typer.Option(..., help="output file, e.g. airimu.onnx or airimu.pt"),
+) -> None:
+    """Write the model's streaming step as a file that runs without this package (TorchScript or ONNX, explicit
+    GRU/convolution state in and out; conventions in learned_imu.deploy)."""
+    from rich.console import Console
+
+    from learned_imu.deploy import export_checkpoint
+
+    written = export_checkpoint(checkpoint, out, format)
+    Console().print(f"{format} model of {checkpoint} written to {written}")
+
+
 def main() -> None:
     """Console entry point: the toolkit's own errors (bad files, configs, checkpoints) print as one line."""
     import sys

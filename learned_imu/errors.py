@@ -25,3 +25,7 @@ class DataError(AirImuError, ValueError):
 
 class ConfigError(AirImuError, ValueError):
     """A configuration file or mapping has an unknown, missing or ill-typed key."""
+
+
+class DependencyError(AirImuError, ImportError):
+    """An optional dependency that a requested feature needs is not installed; the message names the extra."""

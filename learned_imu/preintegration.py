@@ -194,47 +194,90 @@ def _odd_even_scan(mats: torch.Tensor) -> torch.Tensor:
 def _propagate_covariance(step_jacobian, h, rot, rot_before, force, gyro_cov, acc_cov, index) -> torch.Tensor:
     """Covariance (..., 9, 9, K) in GTSAM's tangent chart after the samples ``index`` (all if None); see the
     module docstring. Samples-last layout throughout; ``h`` is dt shaped (..., 1, N)."""
-
-    def mm(x, y, transpose_y=False):
-        return so3.matmul(x, y, dim=-2, transpose_b=transpose_y)
-
-    def tr(x):
-        return x.transpose(-3, -2)
-
     hh = h[..., None, :, :]  # dt for matrices, (..., 1, 1, N)
     # Per-sample noise injected into the start-frame error state [phi, v, p].
-    lever = mm(rot, step_jacobian)  # d phi_{k+1} / d(gyro noise dt), Jr(w dt) of each step
-    g_phi = mm(lever * (gyro_cov * h)[..., None, :, :], lever, True)  # Cov of the phi increment
-    q_acc = mm(rot_before * (acc_cov * h)[..., None, :, :], rot_before, True)  # Cov of the v increment
+    lever = _mm(rot, step_jacobian)  # d phi_{k+1} / d(gyro noise dt), Jr(w dt) of each step
+    g_phi = _mm(lever * (gyro_cov * h)[..., None, :, :], lever, True)  # Cov of the phi increment
+    q_acc = _mm(rot_before * (acc_cov * h)[..., None, :, :], rot_before, True)  # Cov of the v increment
     m = -so3.hat(force, dim=-2) * hh  # d v_{k+1} / d phi_k
+    if index is not None and index.numel() == 1:
+        end = int(index) + 1
+        blocks = _final_blocks(*(t[..., :end] for t in (g_phi, q_acc, m, hh)))
+        return _to_tangent_chart(rot[..., end - 1 : end], blocks)
 
     # Each line: a block of Sigma before sample k (exclusive cumsum), from blocks already known before k.
     p_inc, p_ex = _cumsums(g_phi)  # Sigma_phi,phi
-    mp = mm(m, p_ex)
+    mp = _mm(m, p_ex)
     x_inc, x_ex = _cumsums(mp)  # Sigma_v,phi
-    xm, mpm = mm(x_ex, m, True), mm(mp, m, True)
-    xm_sym = xm + tr(xm)
+    xm, mpm = _mm(x_ex, m, True), _mm(mp, m, True)
+    xm_sym = xm + _tr(xm)
     v_inc, v_ex = _cumsums(xm_sym + mpm + q_acc)  # Sigma_v,v
     y_inc, y_ex = _cumsums(hh * (x_ex + 0.5 * mp))  # Sigma_p,phi
-    ym = mm(y_ex, m, True)
-    z_inc, z_ex = _cumsums(ym + hh * (v_ex + xm + 0.5 * (tr(xm) + mpm + q_acc)))  # Sigma_p,v
-    w_term = hh * (z_ex + tr(z_ex) + 0.5 * (ym + tr(ym))) + hh * hh * (v_ex + 0.5 * xm_sym + 0.25 * (mpm + q_acc))
+    ym = _mm(y_ex, m, True)
+    z_inc, z_ex = _cumsums(ym + hh * (v_ex + xm + 0.5 * (_tr(xm) + mpm + q_acc)))  # Sigma_p,v
+    w_term = hh * (z_ex + _tr(z_ex) + 0.5 * (ym + _tr(ym))) + hh * hh * (v_ex + 0.5 * xm_sym + 0.25 * (mpm + q_acc))
     w_inc = torch.cumsum(w_term, dim=-1)  # Sigma_p,p
-
+    blocks = (p_inc, x_inc, v_inc, y_inc, z_inc, w_inc)
     if index is not None:
-        rot, p_inc, x_inc, v_inc, y_inc, z_inc, w_inc = (
-            t[..., index] for t in (rot, p_inc, x_inc, v_inc, y_inc, z_inc, w_inc)
-        )
-    # Map the rotation error from the start frame to GTSAM's tangent chart at theta_k = Log(dR_k).
-    to_tangent = mm(so3.log_and_right_jacobian_inv(rot, dim=-2)[1], rot, True)
-    rp, rv = mm(to_tangent, y_inc, True), mm(to_tangent, x_inc, True)
-    blocks = (
-        (mm(mm(to_tangent, p_inc), to_tangent, True), rp, rv),
-        (tr(rp), w_inc, z_inc),
-        (tr(rv), tr(z_inc), v_inc),
+        rot, blocks = rot[..., index], tuple(t[..., index] for t in blocks)
+    return _to_tangent_chart(rot, blocks)
+
+
+def _final_blocks(g_phi, q_acc, m, hh) -> tuple[torch.Tensor, ...]:
+    """The six blocks after the last sample only, as one sum over samples instead of cumulative sums.
+
+    With phi_N = sum_j w_j (w_j: gyro-noise increment, covariance ``g_phi``), the velocity and position errors are
+    dv_N = sum_i (m_i phi_i + u_i) and dp_N = sum_i c_i (m_i phi_i + u_i), u_i the acc-noise increment (``q_acc``),
+    c_i = (time after sample i) + dt_i / 2. Collecting the w_j: dv_N = sum_j Mv_j w_j + ..., Mv_j = sum_{i>j} m_i,
+    and dp_N = sum_j Mp_j w_j + ..., Mp_j = sum_{i>j} c_i m_i, so every block is one weighted sum of
+    independent noise terms.
+    """
+    after = hh.sum(dim=-1, keepdim=True) - torch.cumsum(hh, dim=-1)  # time after each sample, s
+    c = after + 0.5 * hh
+    mv, mp = _after(m), _after(c * m)
+    mv_p, mp_p = _mm(mv, g_phi), _mm(mp, g_phi)
+
+    def total(x):
+        return x.sum(dim=-1, keepdim=True)
+
+    return (
+        total(g_phi),  # Sigma_phi,phi
+        total(mv_p),  # Sigma_v,phi
+        total(_mm(mv_p, mv, True) + q_acc),  # Sigma_v,v
+        total(mp_p),  # Sigma_p,phi
+        total(_mm(mp_p, mv, True) + c * q_acc),  # Sigma_p,v
+        total(_mm(mp_p, mp, True) + c * c * q_acc),  # Sigma_p,p
+    )
+
+
+def _after(terms: torch.Tensor) -> torch.Tensor:
+    """Exclusive reverse cumulative sum over samples: sum of the terms after each sample."""
+    inclusive = torch.cumsum(terms, dim=-1)
+    return inclusive[..., -1:] - inclusive
+
+
+def _to_tangent_chart(rot, blocks) -> torch.Tensor:
+    """Start-frame blocks (phi,phi; v,phi; v,v; p,phi; p,v; p,p) -> (..., 9, 9, K) with the rotation error in
+    GTSAM's tangent chart at theta_k = Log(dR_k), order [rotation, position, velocity]."""
+    p_inc, x_inc, v_inc, y_inc, z_inc, w_inc = blocks
+    to_tangent = _mm(so3.log_and_right_jacobian_inv(rot, dim=-2)[1], rot, True)
+    rp, rv = _mm(to_tangent, y_inc, True), _mm(to_tangent, x_inc, True)
+    rows = (
+        (_mm(_mm(to_tangent, p_inc), to_tangent, True), rp, rv),
+        (_tr(rp), w_inc, z_inc),
+        (_tr(rv), _tr(z_inc), v_inc),
     )
     # cat, not slice assignment: the backward of a slice assignment copies the whole 9x9xN gradient per block
-    return torch.cat([torch.cat(row, dim=-2) for row in blocks], dim=-3)
+    return torch.cat([torch.cat(row, dim=-2) for row in rows], dim=-3)
+
+
+def _mm(x, y, transpose_y=False):
+    """Samples-last 3x3 products (..., 3, 3, N)."""
+    return so3.matmul(x, y, dim=-2, transpose_b=transpose_y)
+
+
+def _tr(x):
+    return x.transpose(-3, -2)
 
 
 def _bias_jacobian(step_jacobian, h, rot, rot_before, force, index) -> torch.Tensor:
@@ -243,10 +286,7 @@ def _bias_jacobian(step_jacobian, h, rot, rot_before, force, index) -> torch.Ten
     A gyro bias change db_g perturbs the start-frame rotation error by ``-C_k db_g`` with
     ``C_k = sum_{j<=k} dR_{j+1} Jr_j dt_j``; velocity and position follow by cumulative sums like the covariance.
     """
-
-    def mm(x, y):
-        return so3.matmul(x, y, dim=-2)
-
+    mm = _mm
     hh = h[..., None, :, :]
     lever_dt = mm(rot, step_jacobian) * hh
     c_inc, c_ex = _cumsums(lever_dt)
@@ -257,7 +297,7 @@ def _bias_jacobian(step_jacobian, h, rot, rot_before, force, index) -> torch.Ten
     vg_inc, vg_ex = _cumsums(dv_gyro)
     pa_inc = torch.cumsum(hh * (va_ex + 0.5 * dv_acc), dim=-1)
     pg_inc = torch.cumsum(hh * (vg_ex + 0.5 * dv_gyro), dim=-1)
-    rg = -mm(rot.transpose(-3, -2), c_inc)  # rotation error in the frame after the sample
+    rg = -mm(_tr(rot), c_inc)  # rotation error in the frame after the sample
     if index is not None:
         rg, pa_inc, pg_inc, va_inc, vg_inc = (t[..., index] for t in (rg, pa_inc, pg_inc, va_inc, vg_inc))
     rows = ((torch.zeros_like(rg), rg), (pa_inc, pg_inc), (va_inc, vg_inc))

@@ -136,6 +136,24 @@ def test_gradcheck_deltas_and_covariance():
     assert torch.autograd.gradcheck(fn, inputs, eps=1e-6, atol=1e-7, rtol=1e-5)
 
 
+@pytest.mark.parametrize("at", [-1, 4])
+def test_gradcheck_single_reported_sample(at):
+    """One reported sample takes its own route (a weighted sum instead of cumulative sums)."""
+    gyro, acc = imu_samples(7, max_rate=3.0, seed=17)
+    rng = np.random.default_rng(18)
+    inputs = (
+        torch.tensor(gyro, requires_grad=True),
+        torch.tensor(acc, requires_grad=True),
+        torch.tensor(rng.uniform(1e-4, 1e-3, (7, 3)), requires_grad=True),
+        torch.tensor(rng.uniform(1e-3, 1e-2, (7, 3)), requires_grad=True),
+    )
+
+    def fn(g, a, gc, ac):
+        return preintegrate(g, a, 0.01, gc, ac, at=at).cov
+
+    assert torch.autograd.gradcheck(fn, inputs, eps=1e-6, atol=1e-7, rtol=1e-5)
+
+
 def test_batch_equals_items_alone():
     gyro, acc = imu_samples(37, max_rate=2.0, seed=9, batch=(3, 2))
     g, a = torch.tensor(gyro), torch.tensor(acc)
@@ -157,7 +175,7 @@ def test_short_and_non_power_of_two_lengths(n):
     assert rel_err(scan.cov, loop.cov.numpy()) < 1e-12
 
 
-@pytest.mark.parametrize("at", [slice(49, None, 50), [0, 7, 99], -1, torch.tensor([3, 3, 50])])
+@pytest.mark.parametrize("at", [slice(49, None, 50), [0, 7, 99], -1, [50], 0, torch.tensor([3, 3, 50])])
 def test_reporting_selected_samples_equals_selecting_from_all(at):
     gyro, acc = imu_samples(100, max_rate=2.0, seed=13, batch=(2,))
     g, a = torch.tensor(gyro), torch.tensor(acc)

@@ -14,6 +14,7 @@ w.r.t. a bias [acc, gyro] subtracted from the samples, gravity the world-frame v
 
 from __future__ import annotations
 
+import functools
 from importlib.metadata import version
 
 import gtsam
@@ -39,13 +40,8 @@ def pim_from_deltas(
     zeta = np.concatenate([theta, np.asarray(delta_pos, dtype=float), np.asarray(delta_vel, dtype=float)])
     cov = np.asarray(cov, dtype=float)
 
-    params = gtsam.PreintegrationParams(np.asarray(gravity, dtype=float))
-    for setter in (params.setGyroscopeCovariance, params.setAccelerometerCovariance, params.setIntegrationCovariance):
-        setter(np.eye(3))  # never used: the pim integrates nothing more
-    template = gtsam.PreintegratedImuMeasurements(params, gtsam.imuBias.ConstantBias())
-    template.integrateMeasurement(np.array([0.0, 0.0, 1.0]), np.zeros(3), _SENTINEL_DT)
-    tokens = template.serialize().split()
-    i = _find(tokens, _SENTINEL_DT)
+    params, template, i = _template(tuple(float(g) for g in np.asarray(gravity, dtype=float)))
+    tokens = list(template)
     slots = {  # offset from the deltaTij token -> (expected marker tokens before, values to write)
         3: (["0", "0"], zeta),
         16: (["0", "0", "9", "3"], jac[:, 0:3].ravel(order="F")),
@@ -61,6 +57,18 @@ def pim_from_deltas(
     pim.deserialize(" ".join(tokens))
     _check_read_back(pim, dt, zeta, cov, delta_rot)
     return pim
+
+
+@functools.lru_cache(maxsize=8)
+def _template(gravity: tuple[float, float, float]) -> tuple[gtsam.PreintegrationParams, tuple[str, ...], int]:
+    """Params for this gravity, the archive tokens of a template pim, and the index of its deltaTij token."""
+    params = gtsam.PreintegrationParams(np.array(gravity))
+    for setter in (params.setGyroscopeCovariance, params.setAccelerometerCovariance, params.setIntegrationCovariance):
+        setter(np.eye(3))  # never used: the pim integrates nothing more
+    template = gtsam.PreintegratedImuMeasurements(params, gtsam.imuBias.ConstantBias())
+    template.integrateMeasurement(np.array([0.0, 0.0, 1.0]), np.zeros(3), _SENTINEL_DT)
+    tokens = tuple(template.serialize().split())
+    return params, tokens, _find(list(tokens), _SENTINEL_DT)
 
 
 def _fmt(value: float) -> str:

@@ -107,11 +107,11 @@ def gps_for(sequence: ImuSequence, rate_hz: float, sigma_m: float, seed: int) ->
 
 
 def ate_m(solution: Solution, truth: Gps) -> float:
-    """RMSE of keyframe positions against the reference positions at the nearest times (no alignment)."""
+    """RMSE, m, of the fused positions against the reference positions at the reference's own times within the
+    keyframes' span (the trajectory interpolated between keyframes, ``Trajectory.position_at``; no alignment)."""
     traj = solution.trajectory
-    index = np.clip(np.searchsorted(traj.t, truth.t), 0, len(traj.t) - 1)
-    close = np.abs(traj.t[index] - truth.t) <= 0.5 * float(np.median(np.diff(traj.t))) + 1e-9
-    err = traj.pos[index[close]] - truth.pos[close]
+    inside = (truth.t >= traj.t[0]) & (truth.t <= traj.t[-1])
+    err = traj.position_at(truth.t[inside]) - truth.pos[inside]
     return float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
 
 

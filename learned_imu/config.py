@@ -74,6 +74,7 @@ class LossConfig:
     velocity: float = 1.0
     covariance: float = 1e-3
     huber_delta: float = 0.005
+    covariance_trains_corrections: bool = False
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,8 @@ the frame at i -- exactly the coordinates of ``Preintegrated.cov``, so the likel
 
 - state loss: Huber (smooth L1) on each error block, weighted per block;
 - covariance loss: Gaussian negative log-likelihood of the errors under the diagonal of the covariance,
-  ``0.5 * (e^2 / sigma^2 + log sigma^2)``, weighted by epsilon (the paper uses 1e-3);
+  ``0.5 * (e^2 / sigma^2 + log sigma^2)``, weighted by epsilon (the paper uses 1e-3); it trains the uncertainty
+  (the errors are detached, as in the official code, unless ``covariance_trains_corrections``);
 - normalised squared errors ``e^2 / sigma^2`` per block, for calibration reports (about 1 when calibrated).
 """
 
@@ -34,6 +35,11 @@ class LossWeights:
     velocity: float = 1.0
     covariance: float = 1e-3
     huber_delta: float = 0.005  # transition of the smooth L1 loss, in the unit of each block
+    covariance_trains_corrections: bool = False
+    """Let the likelihood's gradient reach the errors (hence the corrections). Off by default, as in the official
+    AirIMU code (its ``covaug: False`` detaches the errors): through the errors the NLL weights each window's
+    correction gradient by 1/sigma^2, and with epsilon = 1e-3 that term outweighs the Huber loss ~10x on EuRoC,
+    so the corrections end up trained by whatever the noise decoders currently believe."""
 
 
 def delta_errors(pre: Preintegrated, start: NavState, end: NavState, gravity) -> torch.Tensor:
@@ -72,7 +78,8 @@ def total_loss(errors: torch.Tensor, cov: torch.Tensor | None, weights: LossWeig
     """State loss plus, when a covariance is given, epsilon times its negative log-likelihood."""
     loss = state_loss(errors, weights)
     if cov is not None and weights.covariance > 0:
-        loss = loss + weights.covariance * covariance_nll(errors, cov)
+        seen = errors if weights.covariance_trains_corrections else errors.detach()
+        loss = loss + weights.covariance * covariance_nll(seen, cov)
     return loss
 
 

@@ -73,3 +73,15 @@ def test_state_loss_weights_and_total():
     assert total_loss(errors, cov, with_cov).item() == pytest.approx(
         state_loss(errors, with_cov).item() + 1e-3 * covariance_nll(errors, cov).item(), rel=1e-6
     )
+
+
+def test_covariance_loss_trains_the_uncertainty_not_the_corrections_by_default():
+    """As the official code (``covaug: False``): the NLL's gradient reaches the covariance, not the errors."""
+    errors = torch.randn(4, 9, dtype=torch.float64, requires_grad=True)
+    cov = torch.diag_embed(torch.rand(4, 9, dtype=torch.float64) * 1e-4 + 1e-6).requires_grad_(True)
+    for through in (False, True):
+        weights = LossWeights(covariance_trains_corrections=through)
+        grad_e, grad_c = torch.autograd.grad(total_loss(errors, cov, weights), (errors, cov))
+        (grad_state,) = torch.autograd.grad(state_loss(errors, weights), errors)
+        assert grad_c.abs().max() > 0
+        assert torch.allclose(grad_e, grad_state) != through

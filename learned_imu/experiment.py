@@ -31,7 +31,7 @@ from learned_imu.checkpoint import build_model, load_checkpoint, save_checkpoint
 from learned_imu.config import ExperimentConfig, SequenceConfig, save_config, to_dict
 from learned_imu.errors import ConfigError
 from learned_imu.evaluate import Evaluation, evaluate
-from learned_imu.io import atomic_file
+from learned_imu.io import atomic_file, remove_temporaries
 from learned_imu.losses import LossWeights
 from learned_imu.model import AirImuNet, Correction, correct_sequence
 from learned_imu.sequence import ImuSequence
@@ -42,6 +42,7 @@ log = logging.getLogger(__name__)
 SIMULATOR = "simulator"
 # keys that may differ when resuming: the data may move, and the epoch budget may grow
 RESUMABLE_CHANGES = ("data.root", "train.epochs", "train.early_stop_patience", "train.calibration_steps")
+RUN_FILES = ("config.yaml", "metrics.jsonl", "best.pt", "last.pt")
 
 
 @dataclass(frozen=True)
@@ -116,6 +117,8 @@ def train_run(config: ExperimentConfig, folder: str | Path, progress: bool = Tru
     without the covariance loss (and skips the covariance propagation)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
+    for stale in remove_temporaries(folder, RUN_FILES):  # a killed run's unfinished write
+        log.warning("removed %s, left by an interrupted write", stale)
     cfg_dict = to_dict(config)
     train_seqs = load_sequences(config.data.train, config.data.root)
     val_seqs = load_sequences(config.data.val, config.data.root)
@@ -142,8 +145,10 @@ def train_run(config: ExperimentConfig, folder: str | Path, progress: bool = Tru
         if not best or entry["val_loss"] < best["val_loss"]:
             best = dict(entry)
             save_checkpoint(folder / "best.pt", cfg_dict, trainer.state_dict(), best)
-        save_checkpoint(folder / "last.pt", cfg_dict, trainer.state_dict(), best)
+        # the log before last.pt: a resume cuts the log back to last.pt's epochs, so a kill between the two
+        # writes repeats this epoch; the other order would lose its line from the log
         _write_metrics(folder / "metrics.jsonl", history)
+        save_checkpoint(folder / "last.pt", cfg_dict, trainer.state_dict(), best)
         log.info("%s epoch %d: %s", config.name, entry["epoch"], json.dumps(entry))
     if use_cov and t.calibration_steps > 0 and not best.get("calibrated", False):
         _calibrate_best(folder, cfg_dict, trainer, best, t)

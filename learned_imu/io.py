@@ -11,13 +11,15 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+TEMP_SUFFIX = ".tmp"  # temporary files are ".<target name>.<random>.tmp" beside the target
+
 
 @contextmanager
 def atomic_file(path: str | Path, mode: str = "w") -> Iterator:
     """Open a temporary file beside ``path``; on success it replaces ``path``, on error it is removed."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TEMP_SUFFIX, dir=path.parent)
     try:
         with os.fdopen(fd, mode) as f:
             yield f
@@ -25,6 +27,17 @@ def atomic_file(path: str | Path, mode: str = "w") -> Iterator:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def remove_temporaries(folder: str | Path, names) -> list[Path]:
+    """Delete the temporary files ``atomic_file`` left beside ``folder/name`` for each of ``names`` when its process
+    was killed mid-write (SIGKILL skips the clean-up; the targets themselves are intact). Only for a folder with a
+    single writer, such as a run folder being resumed: another writer's file in progress would be deleted too.
+    Returns the deleted files."""
+    stale = [p for name in names for p in Path(folder).glob(f".{name}.*{TEMP_SUFFIX}") if p.is_file()]
+    for path in stale:
+        path.unlink(missing_ok=True)
+    return stale
 
 
 def write_json_atomic(path: str | Path, data) -> Path:

@@ -33,6 +33,10 @@ def _content(line: str, comments: str | None) -> str:
 
 
 def _is_number(token: str) -> bool:
+    """Whether numpy's text parser reads ``token`` as a number (Python's ``float`` also takes ``'1_0'`` and
+    non-ASCII digits, which ``np.loadtxt`` refuses: those must be reported as malformed, with their line)."""
+    if not token.isascii() or "_" in token:
+        return False
     try:
         float(token)
     except ValueError:
@@ -107,8 +111,9 @@ class Table:
 def _find_header(path: Path, delimiter: str | None, comments: str | None, header: bool | None):
     """(header names, number of lines to skip) from the first non-blank line.
 
-    ``header=None`` detects it: a first line with a non-numeric token is the header (a leading comment
-    marker is stripped first, as in EuRoC's ``#timestamp [ns],...``).
+    ``header=None`` detects it: a first line without any number is the header (a leading comment marker is
+    stripped first, as in EuRoC's ``#timestamp [ns],...``); a line mixing numbers and text is a malformed data
+    row, reported as such rather than silently skipped as a header.
     """
     with open(path, encoding="utf-8", errors="replace") as f:
         for number, line in enumerate(f, start=1):
@@ -118,7 +123,7 @@ def _find_header(path: Path, delimiter: str | None, comments: str | None, header
             commented = comments is not None and text.startswith(comments)
             body = text[len(comments) :].strip() if commented else _content(text, comments)
             names = tuple(_tokens(body, delimiter))
-            is_header = header if header is not None else not all(_is_number(t) for t in names if t)
+            is_header = header if header is not None else not any(_is_number(t) for t in names if t)
             if not is_header:
                 return (), number - 1
             return names, number
@@ -177,9 +182,9 @@ def read_table(
         data = np.loadtxt(path, delimiter=delimiter, comments=comments, skiprows=skip, ndmin=2, dtype=np.float64)
     except ValueError as err:
         bad = _first_bad_line(path, skip, delimiter, comments)
-        if bad is None:
-            raise DataError(path, field, f"could not parse: {err}") from err
-        raise DataError(path, field, bad[1], line=bad[0]) from err
+        if bad is not None:
+            raise DataError(path, field, bad[1], line=bad[0]) from err
+        data = _parse_content_lines(path, skip, delimiter, comments, field)
     if data.shape[0] == 0:
         raise DataError(path, field, "no data rows")
     if names and data.shape[1] != len(names):
@@ -190,6 +195,19 @@ def read_table(
         line = _first_line_number(path, skip, comments)
         raise DataError(path, field, f"expected at least {min_columns} columns, got {data.shape[1]}", line=line)
     return Table(path, data, names, skip, delimiter, comments)
+
+
+def _parse_content_lines(path: Path, skip: int, delimiter: str | None, comments: str | None, field: str):
+    """Parse only the lines with content. ``np.loadtxt`` refuses a line of white space or an indented comment as a
+    row of one empty column, while the line scan (``_content``) skips them as blank: parse what the scan sees."""
+    with open(path, encoding="utf-8", errors="replace") as f:
+        lines = [line for number, line in enumerate(f, start=1) if number > skip and _content(line, comments)]
+    if not lines:
+        raise DataError(path, field, "no data rows")
+    try:
+        return np.loadtxt(lines, delimiter=delimiter, comments=comments, ndmin=2, dtype=np.float64)
+    except ValueError as err:
+        raise DataError(path, field, f"could not parse: {err}") from err
 
 
 def _first_line_number(path: Path, skip: int, comments: str | None) -> int | None:

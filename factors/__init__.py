@@ -1,6 +1,6 @@
 """factors: GTSAM factors for learned IMU preintegration and GPS (gtsam + numpy; never imports torch)."""
 
-from factors.checks import GraphError, check_values
+from factors.checks import GraphError, check_anchored, check_values, solve_or_explain
 from factors.export_file import Export, ExportError, from_export, load_export
 from factors.gps import GpsFactor, gps_noise
 from factors.imu import LearnedImuFactor
@@ -12,7 +12,9 @@ __all__ = [
     "GpsFactor",
     "GraphError",
     "LearnedImuFactor",
+    "check_anchored",
     "check_values",
+    "solve_or_explain",
     "from_export",
     "gps_noise",
     "learned_pim",

@@ -1,6 +1,11 @@
-"""Checks to run before an optimiser: every key a factor uses must have a value of the right type."""
+"""Checks to run before an optimiser: every key a factor uses must have a value, every value must be constrained,
+and every connected part of the graph must be anchored by a unary factor (a prior or a GPS fix); and a readable
+error instead of GTSAM's ``IndeterminantLinearSystemException`` when the solver finds the system singular."""
 
 from __future__ import annotations
+
+import re
+from collections.abc import Callable
 
 import gtsam
 
@@ -34,3 +39,51 @@ def check_values(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> Non
     unused = [key for key in values.keys() if key not in used]
     if unused:
         raise GraphError(f"{key_name(unused[0])} has an initial value but no factor constrains it")
+
+
+def check_anchored(graph: gtsam.NonlinearFactorGraph) -> None:
+    """Raise ``GraphError`` if a connected part of the graph has no unary factor (prior, GPS fix, equality):
+    nothing then fixes those states in the world frame and the linear system is singular."""
+    parent: dict[int, int] = {}
+
+    def root(key: int) -> int:
+        while parent.setdefault(key, key) != key:
+            parent[key] = parent[parent[key]]
+            key = parent[key]
+        return key
+
+    anchored_keys = set()
+    for i in range(graph.size()):
+        factor = graph.at(i)
+        if factor is None:
+            continue
+        keys = list(factor.keys())
+        if len(keys) == 1:
+            anchored_keys.add(keys[0])
+        for key in keys:
+            parent[root(key)] = root(keys[0])
+    anchored = {root(key) for key in anchored_keys}
+    loose = sorted((key for key in parent if root(key) not in anchored), key=lambda k: (root(k), k))
+    if loose:
+        part = [key for key in loose if root(key) == root(loose[0])]
+        raise GraphError(
+            f"{len(part)} states ({key_name(part[0])} ... {key_name(part[-1])}) are connected to no prior or GPS "
+            "factor: nothing fixes them in the world frame (add a prior on one of them or a GPS fix)"
+        )
+
+
+def solve_or_explain(optimise: Callable[[], gtsam.Values]) -> gtsam.Values:
+    """Run ``optimise`` (e.g. ``optimizer.optimize``); GTSAM's indeterminate-system error becomes a ``GraphError``
+    that names the state and the usual causes."""
+    try:
+        return optimise()
+    except RuntimeError as error:
+        if "Indeterminate" not in str(error) and "Indeterminant" not in str(error):
+            raise
+        near = re.search(r"Symbol: (\w+)\)", str(error))
+        where = f"near {near.group(1)}" if near else "somewhere in the graph"
+        raise GraphError(
+            f"the graph does not determine every state ({where}): its linear system is singular. Usual causes: "
+            "too few GPS fixes for the unknown heading (at least 2 well-separated fixes per connected stretch), "
+            "a keyframe without an IMU factor to its neighbours, or a zero-information noise model"
+        ) from None

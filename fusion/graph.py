@@ -26,7 +26,16 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
-from factors import Export, GpsFactor, check_values, from_export, gps_noise, load_export
+from factors import (
+    Export,
+    GpsFactor,
+    check_anchored,
+    check_values,
+    from_export,
+    gps_noise,
+    load_export,
+    solve_or_explain,
+)
 from learned_imu.io import atomic_file
 
 X, V, B = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V, gtsam.symbol_shorthand.B
@@ -157,6 +166,7 @@ def build_graph(
         _interpolated_values(export, times, gps, (pose0, vel0), settings),
         _sequential_initial_values(export, imu_factors, gps_factors, priors, (pose0, vel0), settings),
     ]
+    check_anchored(graph)
     for values in candidates:
         check_values(graph, values)
     return graph, min(candidates, key=graph.error)
@@ -168,7 +178,7 @@ def solve(
     """Levenberg-Marquardt on the graph; the keyframe states as a ``Trajectory``."""
     settings = settings or FusionSettings()
     optimiser = gtsam.LevenbergMarquardtOptimizer(graph, values, _lm_params(settings))
-    result = optimiser.optimize()
+    result = solve_or_explain(optimiser.optimize)
     return Solution(trajectory_of(result, times), graph, result, optimiser.iterations(), graph.error(result))
 
 

@@ -37,3 +37,36 @@ def test_unconstrained_value_is_named():
     values.insert(V(7), np.zeros(3))
     with pytest.raises(GraphError, match="v7 has an initial value but no factor constrains it"):
         check_values(graph, values)
+
+
+def imu_chain(n: int) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+    """Poses X(0..n-1) linked by between factors, no anchor."""
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    for k in range(n):
+        values.insert(X(k), gtsam.Pose3(gtsam.Rot3(), np.array([k, 0.0, 0.0])))
+        if k:
+            step = gtsam.Pose3(gtsam.Rot3(), np.array([1.0, 0.0, 0.0]))
+            graph.add(gtsam.BetweenFactorPose3(X(k - 1), X(k), step, gtsam.noiseModel.Isotropic.Sigma(6, 0.1)))
+    return graph, values
+
+
+def test_a_part_anchored_by_no_prior_or_fix_is_named():
+    from factors.checks import check_anchored
+
+    graph, _ = imu_chain(5)
+    with pytest.raises(GraphError, match=r"5 states \(x0 ... x4\) are connected to no prior or GPS factor"):
+        check_anchored(graph)
+    graph.add(GpsFactor(X(2), [2.0, 0.0, 0.0], gps_noise(0.1)))
+    check_anchored(graph)  # now anchored
+
+
+def test_a_singular_system_is_explained_not_thrown_as_gtsam_exception():
+    """One GPS fix anchors the chain structurally, but leaves its rotation free: GTSAM's indeterminate-system
+    error becomes a GraphError naming the state."""
+    from factors.checks import solve_or_explain
+
+    graph, values = imu_chain(4)
+    graph.add(GpsFactor(X(0), [0.5, 0.0, 0.0], gps_noise(0.1)))  # off the initial value: the solver must iterate
+    optimiser = gtsam.GaussNewtonOptimizer(graph, values)
+    with pytest.raises(GraphError, match=r"does not determine every state \(near x\d+\)"):
+        solve_or_explain(optimiser.optimize)

@@ -14,3 +14,17 @@ def test_failed_write_keeps_the_previous_file(tmp_path):
         write_json_atomic(path, {"bad": object()})  # not JSON-serialisable, fails mid-write
     assert json.loads(path.read_text()) == {"roe_deg": 1.0}
     assert [p.name for p in tmp_path.iterdir()] == ["out.json"]
+
+
+def test_atomic_writes_get_the_usual_permissions(tmp_path):
+    """mkstemp makes 0600 files; a written checkpoint or export must be readable like any other file."""
+    import os
+
+    from learned_imu.io import write_json_atomic
+
+    mask = os.umask(0o022)
+    try:
+        path = write_json_atomic(tmp_path / "out.json", {"a": 1})
+    finally:
+        os.umask(mask)
+    assert path.stat().st_mode & 0o777 == 0o644

@@ -140,19 +140,27 @@ def build_graph(
     if settings.backend == "gtsam":
         graph.add(gtsam.NonlinearEqualityConstantBias(B(0), gtsam.imuBias.ConstantBias()))
 
+    # GPS factors: the configured noise for the graph; for the initial guesses Huber instead of Cauchy (or the
+    # Gaussian itself): a redescending loss lets a drifting guess look better than the truth (its far-off residuals
+    # saturate), Huber's linear tails do not
+    init_loss = "huber" if settings.gps_robust else None
     keyframe = _nearest_keyframes(times, gps.t)
     gps_factors: dict[int, list] = {}
+    init_gps: dict[int, list] = {}
     for index, pos, sigma in zip(keyframe, gps.pos, gps.sigma, strict=True):
         if index >= 0:
             factor = GpsFactor(X(index), pos, gps_noise(sigma, settings.gps_robust), settings.lever_arm_m)
             graph.add(factor)
             gps_factors.setdefault(int(index), []).append(factor)
+            if init_loss != settings.gps_robust:
+                factor = GpsFactor(X(index), pos, gps_noise(sigma, init_loss), settings.lever_arm_m)
+            init_gps.setdefault(int(index), []).append(factor)
     if not gps_factors:
         raise ValueError(f"{export.path}: no GPS fix lies within half a keyframe interval of a keyframe")
 
     first = _known_first_state(export, initial_state)
     if first is None:  # no ground truth: align the first state to the GPS track (attitude from gravity + a yaw search)
-        first = _aligned_first_state(export, times, gps, imu_factors, gps_factors, settings)
+        first = _aligned_first_state(export, times, gps, imu_factors, init_gps, settings)
         sigmas = ALIGNED_PRIOR_SIGMAS
     else:
         sigmas = (settings.prior_rot_sigma_rad, settings.prior_pos_sigma_m, settings.prior_vel_sigma_m_s)
@@ -160,16 +168,21 @@ def build_graph(
     priors = _priors(pose0, vel0, *sigmas)
     for factor in priors:
         graph.add(factor)
-    # two guesses, the one the graph likes better wins: GPS-interpolated positions (robust to a strongly biased IMU
-    # over short spans) or the window-by-window solution (robust to hours of attitude drift)
+    check_anchored(graph)
+    # two guesses, the one the (Huber-GPS) graph likes better wins: GPS-interpolated positions (robust to a strongly
+    # biased IMU over short spans) or the window-by-window solution (robust to hours of attitude drift)
     candidates = [
         _interpolated_values(export, times, gps, (pose0, vel0), settings),
-        _sequential_initial_values(export, imu_factors, gps_factors, priors, (pose0, vel0), settings),
+        _sequential_initial_values(export, imu_factors, init_gps, priors, (pose0, vel0), settings),
     ]
-    check_anchored(graph)
     for values in candidates:
         check_values(graph, values)
-    return graph, min(candidates, key=graph.error)
+    init_graph = gtsam.NonlinearFactorGraph()
+    for factor in [graph.at(i) for i in range(graph.size()) if not isinstance(graph.at(i), GpsFactor)]:
+        init_graph.add(factor)
+    for factor in (f for fixes in init_gps.values() for f in fixes):
+        init_graph.add(factor)
+    return graph, min(candidates, key=init_graph.error)
 
 
 def solve(

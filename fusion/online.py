@@ -1,0 +1,345 @@
+"""Online IMU + GPS fusion: samples and fixes go in as they arrive; the learned pose graph is solved incrementally.
+
+Per block of IMU samples (``OnlineFusion.add_imu``), as ``fusion.graph.build_graph`` but one keyframe at a time:
+buffer the samples; decide keyframes (the first sample, then the first at least ``keyframe_s`` after the previous,
+with half a sample period of tolerance: ``export.keyframes_every`` for uniform rates); once an interval is complete,
+correct it with the model in streaming mode (``AirImuNet.stream``, carried GRU state: what a one-pass
+``correct_sequence`` gives) or take the raw samples with fixed noise; preintegrate it as the export does
+(``export.interval_deltas``, float64); wrap it in GTSAM's C++ ``ImuFactor`` (``factors.pim_from_deltas``), predict
+the new keyframe through it, and add it with its GPS factors to ``gtsam.ISAM2`` (or an
+``IncrementalFixedLagSmoother``). GPS fixes attach to the nearest keyframe (the earlier on a tie) without
+interpolation, as in ``fusion.graph``: choose ``keyframe_s`` so that keyframes fall on the fixes.
+
+Keys: ``X(k)`` (``Pose3`` world <- IMU), ``V(k)`` (world velocity, m/s), ``B(k)``. Only C++ factors enter the
+smoother (a Python ``CustomFactor`` gets a copy of all values per call). The samples are corrected, so each
+``ImuFactor`` sees a zero bias as in the batch graph, but through its own ``B(k)`` held by a ``NonlinearEquality``
+rather than one shared ``B(0)``: a key in every factor sits in ISAM2's root clique and updates touch all factors
+(10 minutes at 0.1 s keyframes: update + estimate grew from 1.6 to 58 ms with ``B(0)``, 0.6 to 3.3 ms with ``B(k)``).
+The solution is the same (the bias is exactly zero either way); ISAM2 eliminates the constraint's clique by QR
+(``EliminatePreferCholesky``), so no tight prior is needed. Latency: BENCHMARKS.md ("Online fusion").
+"""
+
+from __future__ import annotations
+
+import bisect
+import logging
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+import torch
+
+from factors import GpsFactor, gps_noise
+from factors.gps import ROBUST_LOSSES
+from factors.pim_from_deltas import pim_from_deltas
+from fusion.graph import Trajectory
+from learned_imu.errors import AirImuError, InputError
+from learned_imu.export import interval_deltas
+from learned_imu.model import DEFAULT_ACC_DENSITY, DEFAULT_GYRO_DENSITY, AirImuNet
+
+log = logging.getLogger(__name__)
+X, V, B = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V, gtsam.symbol_shorthand.B
+SMOOTHERS = ("isam2", "fixed_lag")
+# ISAM2 relinearises a variable whose update exceeds this (rad, m, m/s), checked at every update from the root down
+# only as far as cliques need it (partial check: a full check relinearised far-back stretches of the trajectory,
+# 13 ms mean update after 5 minutes against 3.8 ms). GTSAM's default threshold 0.1 left 8 mm between the online and
+# the batch LM solution of a 60 s simulated flight; 0.01 leaves 2 mm.
+RELINEARIZE_THRESHOLD = 0.01
+
+
+@dataclass(frozen=True, eq=False)
+class OnlineState:
+    """The estimate at the latest keyframe in the graph.
+
+    ``t`` s (IMU clock); ``rot`` (3, 3) world <- IMU; ``pos`` (3,) m and ``vel`` (3,) m/s, world frame.
+    ``pose_cov`` (6, 6): marginal covariance in GTSAM's ``Pose3`` tangent at the estimate, [rotation (rad),
+    translation (m)], both in the IMU frame (perturbation ``R Exp(d_rot)``, ``p + R d_pos``); ``vel_cov`` (3, 3):
+    marginal velocity covariance, m^2/s^2, world frame.
+    """
+
+    t: float
+    rot: np.ndarray
+    pos: np.ndarray
+    vel: np.ndarray
+    pose_cov: np.ndarray
+    vel_cov: np.ndarray
+
+    @property
+    def pos_cov(self) -> np.ndarray:
+        """(3, 3) marginal position covariance, m^2, world frame."""
+        return self.rot @ self.pose_cov[3:, 3:] @ self.rot.T
+
+
+class OnlineFusion:
+    """Incremental IMU + GPS fusion with learned IMU factors (see the module docstring).
+
+    Args:
+        model: an ``AirImuNet`` in eval mode, or None for the raw samples with ``gyro_density`` / ``acc_density``.
+        gravity: (3,) gravity vector in the world frame, m/s^2.
+        initial_state: (rot (3, 3) world <- IMU, pos (3,) m, vel (3,) m/s) at the first IMU sample: the prior's mean.
+        keyframe_s: keyframe interval, s (each keyframe costs ~10-20 ms of CPU, see BENCHMARKS.md).
+        gyro_density, acc_density: noise densities without a model, rad^2/s and m^2/s^3 (float or (3,)).
+        smoother: ``"isam2"`` (keeps every keyframe) or ``"fixed_lag"`` (keeps the last ``lag_s`` seconds; an older
+            keyframe's trajectory entry is its estimate when it left the window).
+        lag_s: window of the fixed-lag smoother, s.
+        prior_rot_sigma_rad, prior_pos_sigma_m, prior_vel_sigma_m_s: one-sigma prior on the first state.
+        gps_robust: None, ``"huber"`` or ``"cauchy"`` (``factors.gps_noise``).
+        lever_arm_m: (3,) GPS antenna position in the IMU frame, m.
+    """
+
+    def __init__(
+        self,
+        model: AirImuNet | None,
+        gravity,
+        initial_state,
+        keyframe_s: float = 1.0,
+        gyro_density=DEFAULT_GYRO_DENSITY,
+        acc_density=DEFAULT_ACC_DENSITY,
+        smoother: str = "isam2",
+        lag_s: float = 10.0,
+        prior_rot_sigma_rad: float = 0.01,
+        prior_pos_sigma_m: float = 0.1,
+        prior_vel_sigma_m_s: float = 0.1,
+        gps_robust: str | None = None,
+        lever_arm_m=(0.0, 0.0, 0.0),
+    ):
+        if model is not None and model.training:
+            raise InputError("OnlineFusion: call model.eval() first (streaming needs eval mode)")
+        if smoother not in SMOOTHERS:
+            raise InputError(f"OnlineFusion: unknown smoother {smoother!r}; known: {', '.join(SMOOTHERS)}")
+        if not keyframe_s > 0 or not lag_s >= 2 * keyframe_s:
+            raise InputError(f"OnlineFusion: need keyframe_s > 0 and lag_s >= 2 keyframe_s, got {keyframe_s}, {lag_s}")
+        self._model, self._keyframe_s, self._lag_s = model, float(keyframe_s), float(lag_s)
+        self._gravity = _vector("gravity", gravity)
+        rot, pos, vel = (np.asarray(x, dtype=float) for x in initial_state)
+        self._first = (gtsam.Pose3(gtsam.Rot3(rot), _vector("initial pos", pos)), _vector("initial vel", vel))
+        self._prior_sigmas = np.array([prior_rot_sigma_rad] * 3 + [prior_pos_sigma_m] * 3 + [prior_vel_sigma_m_s] * 3)
+        self._density = np.hstack([np.broadcast_to(np.asarray(d, float), (3,)) for d in (gyro_density, acc_density)])
+        if not np.all(self._density > 0) or not np.all(self._prior_sigmas > 0):
+            raise InputError("OnlineFusion: noise densities and prior sigmas must be > 0")
+        if gps_robust not in (None, *ROBUST_LOSSES):
+            raise InputError(
+                f"OnlineFusion: unknown gps_robust {gps_robust!r}; known: None, {', '.join(ROBUST_LOSSES)}"
+            )
+        self._gps_robust, self._lever_arm_m = gps_robust, _vector("lever_arm_m", lever_arm_m)
+        params = gtsam.ISAM2Params()
+        params.setRelinearizeThreshold(RELINEARIZE_THRESHOLD)
+        params.relinearizeSkip = 1
+        params.enablePartialRelinearizationCheck = True
+        self._fixed_lag = smoother == "fixed_lag"
+        self._smoother = gtsam.IncrementalFixedLagSmoother(lag_s, params) if self._fixed_lag else gtsam.ISAM2(params)
+        self._stream = model.initial_state(1) if model is not None else None
+        self._t = np.zeros(0)  # sample times from the last keyframe in the graph on (sample index self._base)
+        self._samples = np.zeros((0, 12))  # corrected [gyro, acc, gyro_cov, acc_cov] from the same sample on
+        self._raw = np.zeros((0, 6))  # raw [gyro, acc] not yet given to the model
+        self._base = 0
+        self._kf_t: list[float] = []  # decided keyframe times, s
+        self._kf_index: list[int] = []  # their sample indices
+        self._in_graph = 0  # keyframes 0 .. _in_graph - 1 are in the smoother
+        self._waiting: list[tuple[float, np.ndarray, gtsam.noiseModel.Base]] = []  # fixes after the last keyframe
+        self._gps_for: dict[int, list[GpsFactor]] = {}  # fixes of keyframes not in the graph yet
+        self._frozen: dict[int, tuple[gtsam.Pose3, np.ndarray]] = {}  # keyframes that left the fixed-lag window
+        self._flushed = False
+
+    @property
+    def keyframes(self) -> int:
+        """Number of keyframes in the graph."""
+        return self._in_graph
+
+    @property
+    def smoother(self) -> gtsam.ISAM2 | gtsam.IncrementalFixedLagSmoother:
+        """The GTSAM smoother, for inspection (factors added to it directly bypass this class's bookkeeping)."""
+        return self._smoother
+
+    def add_imu(self, t, gyro, acc) -> int:
+        """Add one sample (``t`` float, ``gyro``/``acc`` (3,)) or a block (``t`` (M,), (M, 3)): rad/s and m/s^2,
+        raw, IMU frame, times strictly increasing. Returns the number of keyframes this added to the graph."""
+        t, raw = self._check_samples(t, gyro, acc)
+        first = self._base + len(self._t)  # sample index of t[0]
+        self._t = np.concatenate([self._t, t])
+        for i, ti in enumerate(t):
+            if not self._kf_t:
+                self._decide_keyframe(ti, first + i)
+                self._start()
+            elif ti - self._kf_t[-1] >= self._keyframe_s - 0.5 * (ti - self._t[first + i - 1 - self._base]):
+                self._decide_keyframe(ti, first + i)
+        if self._model is None:
+            self._samples = np.concatenate([self._samples, np.hstack([raw, np.broadcast_to(self._density, raw.shape)])])
+        else:
+            self._raw = np.concatenate([self._raw, raw])
+        return self._close_keyframes()
+
+    def add_gps(self, t: float, pos_m, sigma_m) -> bool:
+        """Add a GPS fix: time ``t`` s (IMU clock), antenna position ``pos_m`` (3,) m in the world frame, one-sigma
+        noise ``sigma_m`` m (float or (3,), a standard deviation). Returns True if the graph was updated now,
+        False if the fix waits for its keyframe (or, fixed-lag only, was dropped as older than the window)."""
+        t, pos = float(t), _vector("GPS pos_m", pos_m)
+        sigma = np.broadcast_to(np.asarray(sigma_m, dtype=float), (3,))
+        if not np.isfinite(t) or not np.all(np.isfinite(sigma)) or np.any(sigma <= 0):
+            raise InputError(f"add_gps: need a finite time and positive, finite sigma_m, got t={t}, sigma_m={sigma_m}")
+        if not self._kf_t or t < self._kf_t[0]:
+            first = f"{self._kf_t[0]} s" if self._kf_t else "none yet"
+            raise InputError(f"add_gps: fix at t={t} s precedes the first IMU sample ({first})")
+        fix = (t, pos, gps_noise(sigma, self._gps_robust))
+        if t > self._kf_t[-1]:
+            self._waiting.append(fix)
+            return False
+        i = bisect.bisect_left(self._kf_t, t)  # kf_t[i - 1] < t <= kf_t[i]
+        k = i if self._kf_t[i] == t or t - self._kf_t[i - 1] > self._kf_t[i] - t else i - 1
+        return self._attach(k, fix)
+
+    def flush(self) -> int:
+        """End of the stream: the model's last partial block is padded with the last sample (as
+        ``correct_sequence`` does), completed keyframes are added, and waiting fixes within half an interval of the
+        last keyframe attach to it. Further samples are refused. Returns the number of keyframes added."""
+        if self._model is not None and not self._flushed:
+            self._correct(flush=True)  # also the samples the model holds back for an incomplete block
+        self._flushed = True
+        added = self._close_keyframes()
+        for fix in self._waiting:
+            if fix[0] - self._kf_t[-1] <= 0.5 * self._keyframe_s:
+                self._attach(len(self._kf_t) - 1, fix)
+        self._waiting = []
+        return added
+
+    def current_state(self) -> OnlineState:
+        """The latest keyframe's estimate and marginal covariances (see ``OnlineState``)."""
+        if not self._in_graph:
+            raise AirImuError("OnlineFusion.current_state: no IMU sample yet")
+        k = self._in_graph - 1
+        pose, vel = self._estimate(k)
+        pose_cov, vel_cov = self._smoother.marginalCovariance(X(k)), self._smoother.marginalCovariance(V(k))
+        rot = pose.rotation().matrix()
+        return OnlineState(self._kf_t[k], rot, pose.translation(), np.asarray(vel), pose_cov, vel_cov)
+
+    def trajectory(self) -> Trajectory:
+        """All keyframes in the graph at their current estimates (fixed-lag: older ones as they left the window)."""
+        values = self._smoother.calculateEstimate()
+        states = [self._frozen.get(k) or (values.atPose3(X(k)), values.atVector(V(k))) for k in range(self._in_graph)]
+        return Trajectory(
+            t=np.array(self._kf_t[: self._in_graph]),
+            rot=np.array([p.rotation().matrix() for p, _ in states]).reshape(-1, 3, 3),
+            pos=np.array([p.translation() for p, _ in states]).reshape(-1, 3),
+            vel=np.array([v for _, v in states]).reshape(-1, 3),
+        )
+
+    def _start(self) -> None:
+        """Keyframe 0 at the first sample: priors on its state."""
+        pose, vel = self._first
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        graph.add(gtsam.PriorFactorPose3(X(0), pose, gtsam.noiseModel.Diagonal.Sigmas(self._prior_sigmas[:6])))
+        graph.add(gtsam.PriorFactorVector(V(0), vel, gtsam.noiseModel.Diagonal.Sigmas(self._prior_sigmas[6:])))
+        values.insert(X(0), pose)
+        values.insert(V(0), vel)
+        self._in_graph = 1
+        self._update(graph, values)
+
+    def _decide_keyframe(self, t: float, index: int) -> None:
+        """A new keyframe at sample ``index``; waiting fixes up to ``t`` go to the nearer of it and the previous."""
+        self._kf_t.append(float(t))
+        self._kf_index.append(index)
+        ready = [fix for fix in self._waiting if fix[0] <= t]
+        self._waiting = [fix for fix in self._waiting if fix[0] > t]
+        for fix in ready:
+            k = len(self._kf_t) - 1
+            self._attach(k - 1 if fix[0] - self._kf_t[k - 1] <= t - fix[0] else k, fix)
+
+    def _close_keyframes(self) -> int:
+        """Add every decided keyframe whose interval's samples are all corrected."""
+        added = 0
+        while len(self._kf_index) > self._in_graph:
+            end = self._kf_index[self._in_graph] - self._base  # the interval is buffer samples [0, end)
+            if len(self._samples) < end and len(self._raw) and not self._flushed:
+                self._correct(flush=False)
+            if len(self._samples) < end:
+                break  # the model's block is not complete yet
+            self._add_keyframe(end)
+            added += 1
+        return added
+
+    @torch.no_grad()
+    def _correct(self, flush: bool) -> None:
+        """Run the model on the raw samples not yet seen (it outputs whole blocks, and keeps the rest)."""
+        p = next(self._model.parameters())
+        gyro, acc = (torch.as_tensor(self._raw[None, :, i : i + 3], dtype=p.dtype, device=p.device) for i in (0, 3))
+        out, self._stream = self._model.stream(gyro, acc, self._stream, flush=flush)
+        self._raw = np.zeros((0, 6))
+        corrected = torch.cat([out.gyro, out.acc, out.gyro_cov, out.acc_cov], dim=-1)[0].double().cpu().numpy()
+        self._samples = np.concatenate([self._samples, corrected])
+
+    def _add_keyframe(self, end: int) -> None:
+        """The learned IMU factor from the last keyframe in the graph to the next one, its fixes, one update."""
+        k = self._in_graph
+        s = self._samples[:end]
+        pre = interval_deltas(s[:, 0:3], s[:, 3:6], np.diff(self._t[: end + 1]), s[:, 6:9], s[:, 9:12])
+        deltas = (pre.rot, pre.pos, pre.vel, pre.dt, pre.cov, pre.bias_jacobian)
+        pim = pim_from_deltas(*(x[-1].numpy() for x in deltas), self._gravity)
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        zero = gtsam.imuBias.ConstantBias()
+        graph.add(gtsam.ImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k), pim))
+        graph.add(gtsam.NonlinearEqualityConstantBias(B(k), zero))
+        for factor in self._gps_for.pop(k, []):
+            graph.add(factor)
+        predicted = pim.predict(gtsam.NavState(*self._estimate(k - 1)), zero)
+        values.insert(X(k), predicted.pose())
+        values.insert(V(k), predicted.velocity())
+        values.insert(B(k), zero)
+        self._t, self._samples, self._base = self._t[end:], self._samples[end:], self._base + end
+        self._in_graph += 1
+        self._update(graph, values)
+
+    def _attach(self, k: int, fix) -> bool:
+        """The GPS factor of ``fix`` on keyframe ``k``: added now if ``k`` is in the graph, else kept for it."""
+        factor = GpsFactor(X(k), fix[1], fix[2], self._lever_arm_m)
+        if k >= self._in_graph:
+            self._gps_for.setdefault(k, []).append(factor)
+            return False
+        if k in self._frozen:
+            log.warning("GPS fix at t=%.3f s is older than the fixed-lag window: dropped", fix[0])
+            return False
+        graph = gtsam.NonlinearFactorGraph()
+        graph.add(factor)
+        self._update(graph, gtsam.Values())
+        return True
+
+    def _update(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
+        if not self._fixed_lag:
+            self._smoother.update(graph, values)
+            return
+        now = self._kf_t[self._in_graph - 1]
+        stamps = {key: now for key in values.keys()}
+        for k in range(len(self._frozen), self._in_graph):  # keyframes this update marginalises: keep their estimate
+            if self._kf_t[k] >= now - self._lag_s:
+                break
+            self._frozen[k] = self._estimate(k)
+        self._smoother.update(graph, values, stamps)
+
+    def _estimate(self, k: int) -> tuple[gtsam.Pose3, np.ndarray]:
+        if k in self._frozen:
+            return self._frozen[k]
+        return self._smoother.calculateEstimatePose3(X(k)), self._smoother.calculateEstimateVector(V(k))
+
+    def _check_samples(self, t, gyro, acc) -> tuple[np.ndarray, np.ndarray]:
+        if self._flushed:
+            raise InputError("add_imu: the stream was flushed; start a new OnlineFusion")
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        gyro, acc = (np.atleast_2d(np.asarray(x, dtype=float)) for x in (gyro, acc))
+        if t.ndim != 1 or gyro.shape != (len(t), 3) or acc.shape != gyro.shape:
+            raise InputError(f"add_imu: need t (M,), gyro and acc (M, 3) (or one sample: a float and (3,)); "
+                             f"got {np.shape(t)}, {gyro.shape}, {acc.shape}")  # fmt: skip
+        raw = np.concatenate([gyro, acc], axis=1)
+        if not np.all(np.isfinite(t)) or not np.all(np.isfinite(raw)):
+            raise InputError(f"add_imu: NaN or Inf in the block starting at t={t[0]} s")
+        before = self._t[-1:]
+        steps = np.diff(np.concatenate([before, t]))
+        if np.any(steps <= 0):
+            bad = t[int(np.argmax(steps <= 0)) + 1 - len(before)]
+            raise InputError(f"add_imu: timestamps must be strictly increasing; t={bad} s is not")
+        return t, raw
+
+
+def _vector(name: str, value) -> np.ndarray:
+    out = np.asarray(value, dtype=float)
+    if out.shape != (3,) or not np.all(np.isfinite(out)):
+        raise InputError(f"OnlineFusion: {name} must be 3 finite numbers, got {value!r}")
+    return out

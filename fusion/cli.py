@@ -166,13 +166,18 @@ def train(
     epochs: int = typer.Option(None, help="override train.epochs"),
     progress: bool = typer.Option(True, help="show progress bars"),
 ) -> None:
-    """Train AirIMU (corrections + uncertainty) into a run folder: config.yaml, metrics.jsonl, best.pt, last.pt."""
+    """Train AirIMU (corrections + uncertainty) into a run folder: config.yaml, metrics.jsonl, best.pt, last.pt.
+    Launched by torchrun (README: several processes or machines), the processes share each batch."""
     from rich.console import Console
 
+    from learned_imu.distributed import process_group
     from learned_imu.experiment import train_run, with_epochs
 
     cfg = _load_config(config, data_root)
-    summary = train_run(with_epochs(cfg, epochs) if epochs else cfg, out, progress=progress)
+    with process_group() as world:
+        summary = train_run(with_epochs(cfg, epochs) if epochs else cfg, out, progress=progress, world=world)
+    if world is not None and not world.writer:
+        return
     Console().print(
         f"{summary.epochs} epochs; best validation loss {summary.best_val_loss:.5f} at epoch {summary.best_epoch} "
         f"({summary.seconds_to_best:.0f} s of training); run folder: {summary.folder}"
@@ -272,3 +277,7 @@ def main() -> None:
             raise
         print(f"airimu: error: {error}", file=sys.stderr)
         sys.exit(2)
+
+
+if __name__ == "__main__":  # python -m fusion.cli, as torchrun -m launches it
+    main()

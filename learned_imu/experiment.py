@@ -13,7 +13,8 @@ A run folder holds:
 Running again on the same folder resumes from ``last.pt`` (same config required, except ``RESUMABLE_CHANGES``)
 and continues the metrics log;
 a finished run returns at once. Every file is replaced atomically, so an interruption loses at most the epoch in
-progress.
+progress. Under ``torchrun`` (``world``, ``learned_imu.distributed``) every rank trains and reads ``last.pt`` to
+resume (the folder must be on a file system all nodes share), but only rank 0 validates, calibrates and writes.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import torch
 
 from learned_imu.checkpoint import build_model, load_checkpoint, save_checkpoint
 from learned_imu.config import ExperimentConfig, SequenceConfig, save_config, to_dict
+from learned_imu.distributed import World, agree, barrier, check_batch_size, is_writer
 from learned_imu.errors import ConfigError
 from learned_imu.evaluate import Evaluation, evaluate
 from learned_imu.io import atomic_file, remove_temporaries
@@ -112,13 +114,19 @@ def evaluate_model(model: AirImuNet, sequence: ImuSequence, config: ExperimentCo
     return evaluate(sequence, interval.interval, interval.interval_unit, out.gyro.numpy(), out.acc.numpy())
 
 
-def train_run(config: ExperimentConfig, folder: str | Path, progress: bool = True) -> RunSummary:
+def train_run(
+    config: ExperimentConfig, folder: str | Path, progress: bool = True, world: World | None = None
+) -> RunSummary:
     """Train (or resume) the run in ``folder``; see the module docstring. ``loss.covariance = 0`` trains
-    without the covariance loss (and skips the covariance propagation)."""
+    without the covariance loss (and skips the covariance propagation). ``world``: this process's rank in a
+    ``torchrun`` job (``learned_imu.distributed.process_group``); every rank calls this and returns the summary."""
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    for stale in remove_temporaries(folder, RUN_FILES):  # a killed run's unfinished write
-        log.warning("removed %s, left by an interrupted write", stale)
+    writer = is_writer(world)
+    check_batch_size(config.train.batch_size, world)
+    if writer:
+        folder.mkdir(parents=True, exist_ok=True)
+        for stale in remove_temporaries(folder, RUN_FILES):  # a killed run's unfinished write
+            log.warning("removed %s, left by an interrupted write", stale)
     cfg_dict = to_dict(config)
     train_seqs = load_sequences(config.data.train, config.data.root)
     val_seqs = load_sequences(config.data.val, config.data.root)
@@ -130,29 +138,41 @@ def train_run(config: ExperimentConfig, folder: str | Path, progress: bool = Tru
         model, build_windows(train_seqs, config, t.stride or None), build_windows(val_seqs, config, None),
         batch_size=t.batch_size, lr=t.lr, weight_decay=t.weight_decay, weights=loss_weights(config),
         use_covariance=use_cov, plateau_factor=t.plateau_factor, plateau_patience=t.plateau_patience,
-        seed=t.seed,
+        seed=t.seed, world=world,
     )  # fmt: skip
     history, best = _resume(folder, cfg_dict, trainer)
-    save_config(folder / "config.yaml", config)
+    if not agree(trainer.epochs_done, world):
+        raise ConfigError(f"{folder}: the ranks read different last.pt files; put the run folder on a shared disk")
+    if writer:
+        save_config(folder / "config.yaml", config)
     clock = time.perf_counter() - (history[-1]["seconds"] if history else 0.0)
     while trainer.epochs_done < t.epochs and not _stalled(history, best, t.early_stop_patience):
-        entry = asdict(trainer.epoch(on_batch=_progress_bar(progress, trainer, history)))
-        metrics = [evaluate_model(model, s, config) for s in val_seqs]
-        entry["val_roe_deg"] = float(np.mean([m.roe_deg for m in metrics]))
-        entry["val_p_rmse_m"] = float(np.mean([m.p_rmse_m for m in metrics]))
+        entry = asdict(trainer.epoch(on_batch=_progress_bar(progress and writer, trainer, history)))
+        if writer:  # the other ranks go on to the next epoch and wait for rank 0 in its first step
+            metrics = [evaluate_model(model, s, config) for s in val_seqs]
+            entry["val_roe_deg"] = float(np.mean([m.roe_deg for m in metrics]))
+            entry["val_p_rmse_m"] = float(np.mean([m.p_rmse_m for m in metrics]))
         entry["seconds"] = time.perf_counter() - clock
         history.append(entry)
-        if not best or entry["val_loss"] < best["val_loss"]:
-            best = dict(entry)
-            save_checkpoint(folder / "best.pt", cfg_dict, trainer.state_dict(), best)
-        # the log before last.pt: a resume cuts the log back to last.pt's epochs, so a kill between the two
-        # writes repeats this epoch; the other order would lose its line from the log
-        _write_metrics(folder / "metrics.jsonl", history)
-        save_checkpoint(folder / "last.pt", cfg_dict, trainer.state_dict(), best)
+        improved = not best or entry["val_loss"] < best["val_loss"]  # val_loss: rank 0's, on every rank
+        best = dict(entry) if improved else best
+        if writer:
+            _write_epoch(folder, cfg_dict, trainer, history, best, improved)
         log.info("%s epoch %d: %s", config.name, entry["epoch"], json.dumps(entry))
-    if use_cov and t.calibration_steps > 0 and not best.get("calibrated", False):
+    if writer and use_cov and t.calibration_steps > 0 and not best.get("calibrated", False):
         _calibrate_best(folder, cfg_dict, trainer, best, t)
+    barrier(world)  # every rank returns once the folder is complete
     return RunSummary(folder, trainer.epochs_done, int(best["epoch"]), best["val_loss"], best["seconds"])
+
+
+def _write_epoch(folder: Path, cfg_dict: dict, trainer: Trainer, history: list[dict], best: dict, improved: bool):
+    """An epoch's files: ``best.pt`` if it improved, the metrics log, ``last.pt``."""
+    if improved:
+        save_checkpoint(folder / "best.pt", cfg_dict, trainer.state_dict(), best)
+    # the log before last.pt: a resume cuts the log back to last.pt's epochs, so a kill between the two
+    # writes repeats this epoch; the other order would lose its line from the log
+    _write_metrics(folder / "metrics.jsonl", history)
+    save_checkpoint(folder / "last.pt", cfg_dict, trainer.state_dict(), best)
 
 
 def _calibrate_best(folder: Path, cfg_dict: dict, trainer: Trainer, best: dict, t) -> None:

@@ -4,7 +4,9 @@ One step: the network corrects a batch of windows and predicts their noise densi
 them into deltas and covariances at the supervised samples; the loss compares the deltas with the ground truth
 in the covariance's chart (``learned_imu.losses``). Adam with weight decay, learning rate reduced on plateaus of
 the validation loss. Deterministic on CPU for a seed: the shuffling generator and torch's global RNG (dropout)
-are part of ``Trainer.state_dict``, so a resumed run continues exactly where the interrupted one was.
+are part of ``Trainer.state_dict``, so a resumed run continues exactly where the interrupted one was. Under
+``torchrun`` (``world``) each rank trains on its shard of every batch and rank 0 validates
+(``learned_imu.distributed``).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from dataclasses import dataclass
 
 import torch
 
+from learned_imu.distributed import World, from_writer, global_loss, shard, wrap
 from learned_imu.losses import LossWeights, delta_errors, total_loss
 from learned_imu.model import AirImuNet
 from learned_imu.preintegration import preintegrate
@@ -33,8 +36,11 @@ class EpochLog:
     lr: float
 
 
-def window_loss(model: AirImuNet, windows: Windows, weights: LossWeights, use_covariance: bool = True) -> torch.Tensor:
-    """Loss of ``model`` on ``windows`` (see the module docstring)."""
+def window_loss(
+    model: torch.nn.Module, windows: Windows, weights: LossWeights, use_covariance: bool = True
+) -> torch.Tensor:
+    """Loss of ``model`` (an ``AirImuNet`` or its DDP wrapper) on ``windows``, a mean over them (see the module
+    docstring)."""
     out = model(windows.gyro, windows.acc, gravity_imu=windows.gravity_imu)
     densities = (out.gyro_cov, out.acc_cov) if use_covariance else (None, None)
     pre = preintegrate(out.gyro, out.acc, windows.dt, *densities, at=windows.at)
@@ -43,7 +49,8 @@ def window_loss(model: AirImuNet, windows: Windows, weights: LossWeights, use_co
 
 
 class Trainer:
-    """Adam + ReduceLROnPlateau over shuffled mini-batches of windows; one ``epoch()`` at a time."""
+    """Adam + ReduceLROnPlateau over shuffled mini-batches of windows; one ``epoch()`` at a time. With a
+    ``world``, ``model`` is trained through a DDP wrapper (``self.net``) and ``batch_size`` is the global batch."""
 
     def __init__(
         self,
@@ -58,12 +65,15 @@ class Trainer:
         plateau_factor: float = 0.5,
         plateau_patience: int = 2,
         seed: int = 0,
+        world: World | None = None,
     ):
         if batch_size < 1 or len(train) == 0 or len(val) == 0:
             raise ValueError(f"Trainer: need batch_size >= 1 and windows to train and validate, got {batch_size}")
         self.model, self.train, self.val = model, train, val
         self.batch_size, self.use_covariance = batch_size, use_covariance
         self.weights = weights or LossWeights()
+        self.world = world
+        self.net = model if world is None else wrap(model, world, () if use_covariance else ("cov_decoder",))
         self.generator = torch.Generator().manual_seed(seed)
         self.optimiser = torch.optim.Adam(model.parameters(), lr=lr, weight_decay=weight_decay)
         self.scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(
@@ -77,16 +87,16 @@ class Trainer:
         order = torch.randperm(len(self.train), generator=self.generator)
         losses = []
         for first in range(0, len(self.train), self.batch_size):
-            batch = self.train.select(order[first : first + self.batch_size])
-            loss = window_loss(self.model, batch, self.weights, self.use_covariance)
+            index, scale = shard(order[first : first + self.batch_size], self.world)
+            loss = window_loss(self.net, self.train.select(index), self.weights, self.use_covariance)
             self.optimiser.zero_grad()
-            loss.backward()
+            (loss if scale == 1.0 else loss * scale).backward()
             self.optimiser.step()
-            losses.append(loss.item())
+            losses.append(global_loss(loss.item(), scale, self.world))
             if on_batch is not None:
                 on_batch(losses[-1])
         lr = self.optimiser.param_groups[0]["lr"]
-        val_loss = self.validation_loss()
+        val_loss = from_writer(self.validation_loss, self.world)
         self.scheduler.step(val_loss)
         entry = EpochLog(self.epochs_done, sum(losses) / len(losses), val_loss, lr)
         self.epochs_done += 1

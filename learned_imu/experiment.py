@@ -3,7 +3,8 @@
 A run folder holds:
 
 - ``config.yaml``: the resolved config (every key, defaults filled in, absolute data root);
-- ``metrics.jsonl``: one JSON line per epoch: ``epoch``, ``train_loss``, ``val_loss``, ``lr``, ``seconds``
+- ``metrics.jsonl``: one JSON line per epoch: ``epoch``, ``train_loss``, ``val_loss`` (the state loss alone, the
+  selection criterion: ``Trainer.validation_loss``), ``lr``, ``seconds``
   (wall time since the run began, summed over resumptions) and the validation metrics ``val_roe_deg``,
   ``val_p_rmse_m`` (means over the validation sequences at the configured interval);
 - ``last.pt`` after every epoch and ``best.pt`` at the best validation loss (``learned_imu.checkpoint``); when

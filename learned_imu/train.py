@@ -105,12 +105,16 @@ class Trainer:
 
     @torch.no_grad()
     def validation_loss(self) -> float:
-        """Loss on the validation windows in eval mode (batched like training, to bound memory)."""
+        """State loss on the validation windows in eval mode (batched like training, to bound memory).
+
+        The model-selection criterion (best epoch, plateau, early stop) of every variant: the covariance's NLL is
+        left out, so runs with and without the covariance loss pick their corrections by the same measure (the noise
+        decoders are calibrated afterwards anyway, ``calibrate_uncertainty``)."""
         self.model.eval()
         total = 0.0
         for first in range(0, len(self.val), self.batch_size):
             batch = self.val.select(torch.arange(first, min(first + self.batch_size, len(self.val))))
-            total += window_loss(self.model, batch, self.weights, self.use_covariance).item() * len(batch)
+            total += window_loss(self.model, batch, self.weights, use_covariance=False).item() * len(batch)
         return total / len(self.val)
 
     def state_dict(self) -> dict:

@@ -46,7 +46,7 @@ def test_training_learns_the_bias_and_generalises_to_unseen_motion():
     model = AirImuNet(use_gru=False)
     history = fit(model, train, val, epochs=25, batch_size=8, lr=1e-2, seed=0)
     assert history[-1].train_loss < 0.2 * history[0].train_loss
-    assert history[-1].val_loss < history[0].val_loss - 0.02  # measured 0.030 -> -0.007 on the unseen 20 s
+    assert history[-1].val_loss < 0.05 * history[0].val_loss  # state loss on the unseen 20 s: 0.019 -> 0.00013
     corrected = correct_sequence(
         model.eval(),
         torch.as_tensor(val_seq.gyro, dtype=torch.float32),

@@ -22,7 +22,7 @@ def learned_pim(
     dt,
     gyro_density,
     acc_density,
-    gravity_m_s2: float = 9.81,
+    gravity_m_s2=9.81,
     integration_density: float = 0.0,
     bias: gtsam.imuBias.ConstantBias | None = None,
 ) -> gtsam.PreintegratedImuMeasurements:
@@ -32,7 +32,8 @@ def learned_pim(
         gyro, acc: (N, 3) corrected samples, rad/s and m/s^2, IMU frame.
         dt: (N,) or float, seconds per sample.
         gyro_density, acc_density: (N, 3) per-sample diagonal noise densities (or (3,) / float for constant).
-        gravity_m_s2: gravity magnitude for ``PreintegrationParams.MakeSharedU``.
+        gravity_m_s2: gravity magnitude for ``PreintegrationParams.MakeSharedU`` (z-up world), or the (3,)
+            world-frame gravity vector, m/s^2.
         integration_density: GTSAM's integration covariance (m^2/s), 0 to match ``learned_imu.preintegrate``.
         bias: the bias estimate to preintegrate around (zero by default; the learned samples are corrected).
     """
@@ -47,7 +48,10 @@ def learned_pim(
     gyro_density = _densities("gyro_density", gyro_density, n)
     acc_density = _densities("acc_density", acc_density, n)
 
-    params = gtsam.PreintegrationParams.MakeSharedU(gravity_m_s2)
+    if np.ndim(gravity_m_s2) == 0:
+        params = gtsam.PreintegrationParams.MakeSharedU(float(gravity_m_s2))
+    else:
+        params = gtsam.PreintegrationParams(np.asarray(gravity_m_s2, dtype=float).reshape(3))
     params.setIntegrationCovariance(np.eye(3) * integration_density)
     pim = gtsam.PreintegratedImuMeasurements(params, bias or gtsam.imuBias.ConstantBias())
     for k in range(n):

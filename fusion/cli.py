@@ -192,24 +192,38 @@ def ablate_imu(
     epochs: int = typer.Option(None, help="override train.epochs"),
     json_out: str = typer.Option(None, "--json", help="write the table to this JSON file"),
     csv_out: str = typer.Option(None, "--csv", help="write the table to this CSV file"),
+    seeds: str = typer.Option(None, help="train the learned variants once per seed, e.g. '0,1,2' (mean +- std)"),
     progress: bool = typer.Option(True, help="show progress bars"),
 ) -> None:
     """The paper's IMU ablation: Baseline, Average Bias, AirIMU w/o and with covariance loss, in one table."""
     from rich.console import Console
     from rich.table import Table
 
-    from learned_imu.ablation import ablate, write_rows
+    from learned_imu.ablation import ablate, summarise, write_rows
     from learned_imu.experiment import with_epochs
 
     cfg = _load_config(config, data_root)
-    rows = ablate(with_epochs(cfg, epochs) if epochs else cfg, out, progress=progress)
+    try:
+        seed_list = None if seeds is None else [int(s) for s in seeds.split(",") if s.strip()]
+    except ValueError:
+        raise typer.BadParameter(f"--seeds must be integers separated by commas, got {seeds!r}") from None
+    rows = ablate(with_epochs(cfg, epochs) if epochs else cfg, out, progress=progress, seeds=seed_list)
     table = Table(title=f"{cfg.name}: IMU ablation, interval {cfg.evaluation.interval} {cfg.evaluation.interval_unit}")
-    for column in ("Sequence", "Setting", *(c for c, _ in METRIC_COLUMNS), "NSE rot/pos/vel"):
+    for column in ("Sequence", "Setting", "Seed", *(c for c, _ in METRIC_COLUMNS), "NSE rot/pos/vel"):
         table.add_column(column)
     for row in rows:
         nse = "-" if row.nse_rot != row.nse_rot else f"{row.nse_rot:.2f}/{row.nse_pos:.2f}/{row.nse_vel:.2f}"
-        table.add_row(row.sequence, row.variant, *(f"{getattr(row, key):.4g}" for _, key in METRIC_COLUMNS), nse)
+        seed = "-" if row.seed is None else str(row.seed)
+        table.add_row(row.sequence, row.variant, seed, *(f"{getattr(row, k):.4g}" for _, k in METRIC_COLUMNS), nse)
     Console().print(table)
+    if seed_list and len(seed_list) > 1:
+        summary = Table(title=f"mean +- std over seeds {seeds}")
+        for column in ("Sequence", "Setting", "Seeds", "ROE (deg)", "P-RMSE (m)"):
+            summary.add_column(column)
+        for s in summarise(rows):
+            summary.add_row(s.sequence, s.variant, str(s.seeds), f"{s.roe_deg_mean:.4g} +- {s.roe_deg_std:.2g}",
+                            f"{s.p_rmse_m_mean:.4g} +- {s.p_rmse_m_std:.2g}")  # fmt: skip
+        Console().print(summary)
     write_rows(rows, json_out, csv_out)
     for path in (json_out, csv_out):
         if path:

@@ -9,6 +9,10 @@ Each learned variant trains in its own run folder (``<out>/<variant.key>``, resu
 best checkpoint. Every variant is scored on the evaluation sequences (``data.evaluate``, else ``data.val``) at the
 configured interval. Learned variants also report the calibration of their covariance on those sequences' windows:
 the mean normalised squared errors ``e^2 / sigma^2`` of rotation, position and velocity (1 when calibrated).
+
+With several ``seeds`` each learned variant trains once per seed (``<out>/<variant.key>_seed<k>``, ``train.seed``
+= k) and ``summarise`` gives mean and standard deviation over seeds: on one short validation sequence the
+seed-to-seed spread of a learned variant can exceed the differences between variants (BENCHMARKS.md, EuRoC).
 """
 
 from __future__ import annotations
@@ -68,17 +72,52 @@ class AblationRow:
     nse_rot: float = float("nan")
     nse_pos: float = float("nan")
     nse_vel: float = float("nan")
+    seed: int | None = None  # train.seed of a learned variant; None for the deterministic baselines
 
 
-def ablate(config: ExperimentConfig, out: str | Path, variants=VARIANTS, progress: bool = True) -> list[AblationRow]:
-    """Train what needs training and score every variant on the evaluation sequences."""
+@dataclass(frozen=True)
+class AblationSummary:
+    """Mean and standard deviation over seeds of one variant on one sequence."""
+
+    variant: str
+    sequence: str
+    seeds: int
+    roe_deg_mean: float
+    roe_deg_std: float
+    p_rmse_m_mean: float
+    p_rmse_m_std: float
+
+
+def ablate(
+    config: ExperimentConfig, out: str | Path, variants=VARIANTS, progress: bool = True, seeds=None
+) -> list[AblationRow]:
+    """Train what needs training and score every variant on the evaluation sequences; learned variants once per
+    seed in ``seeds`` (default: the config's ``train.seed`` alone, in ``<out>/<variant.key>``)."""
     out = Path(out)
     train_seqs = load_sequences(config.data.train, config.data.root)
     eval_seqs = load_sequences(config.data.evaluate or config.data.val, config.data.root)
     rows = []
     for variant in variants:
-        rows += run_variant(variant, config, out, train_seqs, eval_seqs, progress)
+        if variant.correction != "model" or seeds is None:
+            rows += run_variant(variant, config, out, train_seqs, eval_seqs, progress)
+            continue
+        for seed in seeds:
+            seeded = dataclasses.replace(config, train=dataclasses.replace(config.train, seed=int(seed)))
+            keyed = dataclasses.replace(variant, key=f"{variant.key}_seed{int(seed)}")
+            rows += run_variant(keyed, seeded, out, train_seqs, eval_seqs, progress)
     return rows
+
+
+def summarise(rows: list[AblationRow]) -> list[AblationSummary]:
+    """Mean and standard deviation (population) of ROE and P-RMSE over the rows of each variant and sequence."""
+    groups: dict[tuple[str, str], list[AblationRow]] = {}
+    for row in rows:
+        groups.setdefault((row.variant, row.sequence), []).append(row)
+    out = []
+    for (variant, sequence), group in groups.items():
+        roe, p_rmse = np.array([r.roe_deg for r in group]), np.array([r.p_rmse_m for r in group])
+        out.append(AblationSummary(variant, sequence, len(group), roe.mean(), roe.std(), p_rmse.mean(), p_rmse.std()))
+    return out
 
 
 def run_variant(
@@ -117,7 +156,7 @@ def run_variant(
         rows.append(
             AblationRow(
                 variant.name, seq.name, result.roe_deg, result.rpe_m, result.r_rmse_deg, result.p_rmse_m,
-                result.ate_m, *map(float, nse),
+                result.ate_m, *map(float, nse), config.train.seed if model is not None else None,
             )
         )  # fmt: skip
     return rows

@@ -121,3 +121,38 @@ def test_ablation_scores_the_four_settings(tmp_path):
     table = json.loads((tmp_path / "t.json").read_text())
     assert table[0]["variant"] == "Baseline" and table[0]["nse_rot"] is None
     assert (tmp_path / "t.csv").read_text().splitlines()[0].startswith("variant,sequence,roe_deg")
+    assert by["Baseline"].seed is None and by["AirIMU"].seed == TINY.train.seed
+
+
+def test_ablation_over_seeds_trains_each_learned_variant_per_seed(tmp_path):
+    from learned_imu.ablation import summarise
+
+    learned = [v for v in VARIANTS if v.key == "airimu"]
+    rows = ablate(TINY, tmp_path / "seeds", variants=[VARIANTS[0], *learned], progress=False, seeds=[3, 4])
+    assert [(r.variant, r.seed) for r in rows] == [("Baseline", None), ("AirIMU", 3), ("AirIMU", 4)]
+    for seed in (3, 4):
+        config = load_checkpoint(tmp_path / "seeds" / f"airimu_seed{seed}" / "last.pt")["config"]
+        assert config["train"]["seed"] == seed
+    assert rows[1].roe_deg != rows[2].roe_deg  # different seeds, different models
+    summary = {s.variant: s for s in summarise(rows)}
+    assert summary["AirIMU"].seeds == 2 and summary["Baseline"].seeds == 1
+    assert np.isclose(summary["AirIMU"].roe_deg_mean, (rows[1].roe_deg + rows[2].roe_deg) / 2)
+    assert np.isclose(summary["AirIMU"].roe_deg_std, abs(rows[1].roe_deg - rows[2].roe_deg) / 2)
+
+
+def test_ablate_imu_cli_with_seeds_prints_the_summary_and_writes_seeded_rows(tmp_path):
+    from typer.testing import CliRunner
+
+    from fusion.cli import app
+    from learned_imu.config import save_config
+
+    config = tmp_path / "tiny.yaml"
+    save_config(config, dataclasses.replace(TINY, train=dataclasses.replace(TINY.train, epochs=1, calibration_steps=2)))
+    args = ["ablate-imu", "--config", str(config), "--out", str(tmp_path / "abl"), "--seeds", "0,1"]
+    result = CliRunner().invoke(app, [*args, "--json", str(tmp_path / "t.json"), "--no-progress"])
+    assert result.exit_code == 0, result.output
+    assert "mean +- std over seeds 0,1" in result.output
+    rows = json.loads((tmp_path / "t.json").read_text())
+    assert sorted(r["seed"] for r in rows if r["variant"] == "AirIMU") == [0, 1]
+    bad = CliRunner().invoke(app, ["ablate-imu", "--config", str(config), "--seeds", "0,x"])
+    assert bad.exit_code != 0 and "--seeds" in bad.output

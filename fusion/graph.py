@@ -180,11 +180,14 @@ def build_graph(
     ]
     for values in candidates:
         check_values(graph, values)
-    init_graph = gtsam.NonlinearFactorGraph()
-    for factor in [graph.at(i) for i in range(graph.size()) if not isinstance(graph.at(i), GpsFactor)]:
-        init_graph.add(factor)
-    for factor in (f for fixes in init_gps.values() for f in fixes):
-        init_graph.add(factor)
+    init_graph = graph
+    if init_loss != settings.gps_robust:  # the same graph with the initial guesses' GPS factors
+        init_graph = gtsam.NonlinearFactorGraph()
+        for i in range(graph.size()):
+            if not isinstance(graph.at(i), GpsFactor):
+                init_graph.add(graph.at(i))
+        for factor in (f for fixes in init_gps.values() for f in fixes):
+            init_graph.add(factor)
     return graph, min(candidates, key=init_graph.error)
 
 

@@ -45,9 +45,7 @@ def aligned_first_state(export: Export, times, gps, imu_factors, gps_factors, se
     up = -export.gravity / np.linalg.norm(export.gravity)  # world up
     force = export.delta_vel[0] / export.delta_dt[0]  # body frame, ~ -gravity when not accelerating hard
     level = _rotation_between(force / np.linalg.norm(force), up)  # world <- body, yaw arbitrary
-    fixed = sorted(gps_factors)
-    spacing = int(np.median(np.diff(fixed))) if len(fixed) > 1 else len(imu_factors)
-    end = min(len(imu_factors), max(settings.init_window, MIN_FIXES_PER_WINDOW * spacing))
+    end = min(len(imu_factors), _window_length(gps_factors, len(imu_factors), settings))
     best = None
     for yaw in np.deg2rad(np.arange(0.0, 360.0, YAW_STEP_DEG)):
         pose = gtsam.Pose3(gtsam.Rot3.AxisAngle(up, yaw).compose(gtsam.Rot3(level)), pos[0])
@@ -105,9 +103,7 @@ def sequential_initial_values(export: Export, imu_factors, gps_factors, priors, 
     n = len(imu_factors) + 1
     values = gtsam.Values()
     pose, vel = first
-    fixed = sorted(gps_factors)
-    spacing = int(np.median(np.diff(fixed))) if len(fixed) > 1 else n
-    length = max(settings.init_window, MIN_FIXES_PER_WINDOW * spacing)  # keyframes per window
+    length = _window_length(gps_factors, n, settings)
     start = 0
     while start < n - 1:
         end = min(start + length, n - 1)
@@ -126,6 +122,14 @@ def sequential_initial_values(export: Export, imu_factors, gps_factors, priors, 
     if settings.backend == "gtsam":
         values.insert(B(0), gtsam.imuBias.ConstantBias())
     return values
+
+
+def _window_length(gps_factors, n: int, settings) -> int:
+    """Keyframes per initialisation window: ``settings.init_window``, or enough for ``MIN_FIXES_PER_WINDOW`` fixes
+    at the median spacing of the keyframes that hold a fix (``n`` when at most one does)."""
+    fixed = sorted(gps_factors)
+    spacing = int(np.median(np.diff(fixed))) if len(fixed) > 1 else n
+    return max(settings.init_window, MIN_FIXES_PER_WINDOW * spacing)
 
 
 def solve_window(export: Export, imu_factors, gps_factors, priors, start, end, pose, vel, settings):

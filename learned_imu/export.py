@@ -23,7 +23,7 @@ import torch
 
 from learned_imu.errors import DataError
 from learned_imu.io import atomic_file
-from learned_imu.preintegration import Preintegrated, preintegrate
+from learned_imu.preintegration import preintegrate
 from learned_imu.sequence import ImuSequence
 
 FORMAT_VERSION = 1
@@ -100,17 +100,10 @@ def export_preintegration(
     return Path(path)
 
 
-def interval_deltas(gyro, acc, dt, gyro_cov, acc_cov) -> Preintegrated:
-    """What the export stores for whole keyframe intervals: float64 samples (..., L, 3) (rad/s, m/s^2), ``dt``
-    (..., L) s and densities (..., L, 3) -> ``Preintegrated`` at each interval's end only (fields (..., 1, ...)),
-    with its 9x9 covariance and bias Jacobian. ``fusion.online`` preintegrates each keyframe through this too."""
-    return preintegrate(*(torch.as_tensor(x) for x in (gyro, acc, dt, gyro_cov, acc_cov)), at=-1, bias_jacobian=True)
-
-
 def _integrate_intervals(out: dict, which: np.ndarray, length: int, keyframe_index: np.ndarray, samples) -> None:
     """Preintegrate the intervals ``which`` (all ``length`` samples long) in one batched call into ``out``."""
     take = keyframe_index[which][:, None] + np.arange(length)[None, :]  # samples from keyframe k to k + 1
-    pre = interval_deltas(*(x[take] for x in samples))
+    pre = preintegrate(*(torch.as_tensor(x[take]) for x in samples), at=-1, bias_jacobian=True)
     out["delta_rot"][which] = pre.rot[:, -1].numpy()
     out["delta_pos"][which] = pre.pos[:, -1].numpy()
     out["delta_vel"][which] = pre.vel[:, -1].numpy()

@@ -232,8 +232,7 @@ def _final_blocks(g_phi, q_acc, m, hh) -> tuple[torch.Tensor, ...]:
     and dp_N = sum_j Mp_j w_j + ..., Mp_j = sum_{i>j} c_i m_i, so every block is one weighted sum of
     independent noise terms.
     """
-    after = hh.sum(dim=-1, keepdim=True) - torch.cumsum(hh, dim=-1)  # time after each sample, s
-    c = after + 0.5 * hh
+    c = _after(hh) + 0.5 * hh  # time after each sample + half its own step, s
     mv, mp = _after(m), _after(c * m)
     mv_p, mp_p = _mm(mv, g_phi), _mm(mp, g_phi)
 
@@ -286,18 +285,17 @@ def _bias_jacobian(step_jacobian, h, rot, rot_before, force, index) -> torch.Ten
     A gyro bias change db_g perturbs the start-frame rotation error by ``-C_k db_g`` with
     ``C_k = sum_{j<=k} dR_{j+1} Jr_j dt_j``; velocity and position follow by cumulative sums like the covariance.
     """
-    mm = _mm
     hh = h[..., None, :, :]
-    lever_dt = mm(rot, step_jacobian) * hh
+    lever_dt = _mm(rot, step_jacobian) * hh
     c_inc, c_ex = _cumsums(lever_dt)
     m = -so3.hat(force, dim=-2) * hh  # -[dR_k a_k]x dt
     dv_acc = -rot_before * hh  # change of each velocity increment per acc bias
-    dv_gyro = -mm(m, c_ex)  # ... per gyro bias, through the rotation error before the sample
+    dv_gyro = -_mm(m, c_ex)  # ... per gyro bias, through the rotation error before the sample
     va_inc, va_ex = _cumsums(dv_acc)
     vg_inc, vg_ex = _cumsums(dv_gyro)
     pa_inc = torch.cumsum(hh * (va_ex + 0.5 * dv_acc), dim=-1)
     pg_inc = torch.cumsum(hh * (vg_ex + 0.5 * dv_gyro), dim=-1)
-    rg = -mm(_tr(rot), c_inc)  # rotation error in the frame after the sample
+    rg = -_mm(_tr(rot), c_inc)  # rotation error in the frame after the sample
     if index is not None:
         rg, pa_inc, pg_inc, va_inc, vg_inc = (t[..., index] for t in (rg, pa_inc, pg_inc, va_inc, vg_inc))
     rows = ((torch.zeros_like(rg), rg), (pa_inc, pg_inc), (va_inc, vg_inc))

@@ -93,7 +93,7 @@ def preintegrate(gyro, acc, dt, gyro_cov=None, acc_cov=None, at=None, bias_jacob
     # Internally samples are last: vectors (..., 3, N), matrices (..., 3, 3, N); see so3's docstring.
     w, a, h = _samples_last(gyro), _samples_last(acc), dt[..., None, :]
     step, step_jacobian = so3.exp_and_right_jacobian(w * h, dim=-2)
-    rot = _cumulative_product(step)  # dR after each sample
+    rot = _cumulative_rotation(step)  # dR after each sample
     rot_before = torch.cat([_eye_like(rot[..., :1]), rot[..., :-1]], dim=-1)
     force = so3.matvec(rot_before, a, dim=-2)  # dR_k a_k, start frame
     vel = torch.cumsum(force * h, dim=-1)
@@ -161,6 +161,38 @@ class _SamplesFirst(torch.autograd.Function):
         return grad.movedim(ctx.axis, -1).contiguous(), None
 
 
+def _cumulative_rotation(steps: torch.Tensor) -> torch.Tensor:
+    """Inclusive prefix product ``S_0 S_1 ... S_k`` of rotation matrices (..., 3, 3, N), differentiable."""
+    if torch.is_grad_enabled() and steps.requires_grad:
+        return _CumulativeRotation.apply(steps)
+    return _cumulative_product(steps)
+
+
+class _CumulativeRotation(torch.autograd.Function):
+    """The rotation scan with a closed-form backward instead of autograd through its O(log N) rounds.
+
+    With ``R_k = S_0 ... S_k`` and orthogonal factors, ``S_{j+1} ... S_k = R_j^T R_k``, so the gradient of
+    a loss with ``G_k = dL/dR_k`` is ``dL/dS_j = R_{j-1}^T (sum_{k>=j} G_k R_k^T) R_j``: three 3x3 products
+    and one reverse cumulative sum, where autograd through the scan would replay every round backwards.
+    Valid for rotations only (it uses ``R^-1 = R^T``).
+    """
+
+    @staticmethod
+    def forward(ctx, steps):
+        rot = _cumulative_product(steps)
+        ctx.save_for_backward(rot)
+        return rot
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad):
+        (rot,) = ctx.saved_tensors
+        terms = _mm(grad.contiguous(), rot, True)  # G_k R_k^T
+        suffix = terms.sum(dim=-1, keepdim=True) - torch.cumsum(terms, dim=-1) + terms  # sum over k >= j
+        rot_before = torch.cat([_eye_like(rot[..., :1]), rot[..., :-1]], dim=-1)
+        return _mm(_mm(_tr(rot_before), suffix), rot)
+
+
 def _cumulative_product(mats: torch.Tensor) -> torch.Tensor:
     """Inclusive prefix product ``M_0 M_1 ... M_k`` of (..., 3, 3, N) along the last axis, in O(log N) rounds.
 
@@ -197,14 +229,13 @@ def _propagate_covariance(step_jacobian, h, rot, rot_before, force, gyro_cov, ac
     hh = h[..., None, :, :]  # dt for matrices, (..., 1, 1, N)
     # Per-sample noise injected into the start-frame error state [phi, v, p].
     lever = _mm(rot, step_jacobian)  # d phi_{k+1} / d(gyro noise dt), Jr(w dt) of each step
+    if index is not None and index.numel() == 1:
+        end = int(index) + 1
+        terms = (lever, rot_before, force, h, gyro_cov * h, acc_cov * h)
+        return _final_covariance(rot[..., end - 1], *(t[..., :end] for t in terms))[..., None]
     g_phi = _mm(lever * (gyro_cov * h)[..., None, :, :], lever, True)  # Cov of the phi increment
     q_acc = _mm(rot_before * (acc_cov * h)[..., None, :, :], rot_before, True)  # Cov of the v increment
     m = -so3.hat(force, dim=-2) * hh  # d v_{k+1} / d phi_k
-    if index is not None and index.numel() == 1:
-        end = int(index) + 1
-        blocks = _final_blocks(*(t[..., :end] for t in (g_phi, q_acc, m, hh)))
-        return _to_tangent_chart(rot[..., end - 1 : end], blocks)
-
     # Each line: a block of Sigma before sample k (exclusive cumsum), from blocks already known before k.
     p_inc, p_ex = _cumsums(g_phi)  # Sigma_phi,phi
     mp = _mm(m, p_ex)
@@ -223,30 +254,59 @@ def _propagate_covariance(step_jacobian, h, rot, rot_before, force, gyro_cov, ac
     return _to_tangent_chart(rot, blocks)
 
 
-def _final_blocks(g_phi, q_acc, m, hh) -> tuple[torch.Tensor, ...]:
-    """The six blocks after the last sample only, as one sum over samples instead of cumulative sums.
+def _final_covariance(rot_end, lever, rot_before, force, h, gyro_var, acc_var) -> torch.Tensor:
+    """The covariance (..., 9, 9) after the last sample only, as one matrix product over all noise terms.
 
-    With phi_N = sum_j w_j (w_j: gyro-noise increment, covariance ``g_phi``), the velocity and position errors are
-    dv_N = sum_i (m_i phi_i + u_i) and dp_N = sum_i c_i (m_i phi_i + u_i), u_i the acc-noise increment (``q_acc``),
-    c_i = (time after sample i) + dt_i / 2. Collecting the w_j: dv_N = sum_j Mv_j w_j + ..., Mv_j = sum_{i>j} m_i,
-    and dp_N = sum_j Mp_j w_j + ..., Mp_j = sum_{i>j} c_i m_i, so every block is one weighted sum of
-    independent noise terms.
+    The start-frame errors after the last sample are linear in the independent per-sample noises: the gyro noise
+    of sample j enters the rotation error through ``L_j`` (``lever``), the velocity error through
+    ``[uv_j]x L_j`` and the position error through ``[up_j]x L_j``, with ``uv_j = -sum_{i>j} f_i dt_i`` and
+    ``up_j = -sum_{i>j} c_i f_i dt_i`` (``f``: specific force in the start frame, ``c_i`` the time after sample
+    i plus dt_i / 2); the acc noise enters velocity through ``R_j`` (``rot_before``) and position through
+    ``c_j R_j``. Stacking these 9x3 blocks of every sample into W (9 x 6N), the covariance is
+    ``W diag(var) W^T``: a GEMM with an inner size of 6N instead of per-sample 3x3 products.
+    ``gyro_var``, ``acc_var``: per-sample discrete variances of the integrated noise (density * dt).
     """
-    c = _after(hh) + 0.5 * hh  # time after each sample + half its own step, s
-    mv, mp = _after(m), _after(c * m)
-    mv_p, mp_p = _mm(mv, g_phi), _mm(mp, g_phi)
+    c = _after(h) + 0.5 * h  # (..., 1, N), s
+    impulse = force * h
+    uv, up = -_after(impulse), -_after(c * impulse)
+    gyro_rows = torch.cat([lever, _cross(up, lever), _cross(uv, lever)], dim=-3)  # (..., 9, 3, N)
+    acc_rows = torch.cat([c[..., None, :, :] * rot_before, rot_before], dim=-3)  # (..., 6, 3, N), p and v
+    cov = _gram(gyro_rows, gyro_var) + torch.nn.functional.pad(_gram(acc_rows, acc_var), (3, 0, 3, 0))
+    # rotation rows and columns to GTSAM's tangent chart at theta = Log(dR)
+    to_tangent = so3.log_and_right_jacobian_inv(rot_end)[1] @ rot_end.mT
+    cov = torch.cat([to_tangent @ cov[..., :3, :], cov[..., 3:, :]], dim=-2)
+    return torch.cat([cov[..., :3] @ to_tangent.mT, cov[..., 3:]], dim=-1)
 
-    def total(x):
-        return x.sum(dim=-1, keepdim=True)
 
-    return (
-        total(g_phi),  # Sigma_phi,phi
-        total(mv_p),  # Sigma_v,phi
-        total(_mm(mv_p, mv, True) + q_acc),  # Sigma_v,v
-        total(mp_p),  # Sigma_p,phi
-        total(_mm(mp_p, mv, True) + c * q_acc),  # Sigma_p,v
-        total(_mm(mp_p, mp, True) + c * c * q_acc),  # Sigma_p,p
-    )
+def _cross(u: torch.Tensor, mats: torch.Tensor) -> torch.Tensor:
+    """``[u]x M`` for samples-last vectors (..., 3, N) and matrices (..., 3, 3, N): u crossed with each column."""
+    u0, u1, u2 = (x[..., None, :] for x in u.unbind(-2))  # (..., 1, N), broadcast over the columns
+    m0, m1, m2 = mats.unbind(-3)  # rows, (..., 3, N)
+    return torch.stack([u1 * m2 - u2 * m1, u2 * m0 - u0 * m2, u0 * m1 - u1 * m0], dim=-3)
+
+
+def _gram(rows: torch.Tensor, var: torch.Tensor) -> torch.Tensor:
+    """``sum_j W_j diag(var_j) W_j^T`` for samples-last W (..., R, 3, N) and var (..., 3, N): (..., R, R)."""
+    return _Gram.apply(rows.flatten(-2), var.flatten(-2))
+
+
+class _Gram(torch.autograd.Function):
+    """``S = W diag(v) W^T`` for W (..., R, K), v (..., K), with a backward that keeps every GEMM in its fast
+    layout: ``dW = (G + G^T) W diag(v)``, ``dv_k = 1/2 sum_i W_ik ((G + G^T) W)_ik``."""
+
+    @staticmethod
+    def forward(ctx, w, v):
+        ctx.save_for_backward(w, v)
+        return (w * v[..., None, :]) @ w.mT
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad):
+        w, v = ctx.saved_tensors
+        gw = (grad + grad.mT) @ w
+        grad_w = gw * v[..., None, :] if ctx.needs_input_grad[0] else None
+        grad_v = 0.5 * (gw * w).sum(dim=-2) if ctx.needs_input_grad[1] else None
+        return grad_w, grad_v
 
 
 def _after(terms: torch.Tensor) -> torch.Tensor:

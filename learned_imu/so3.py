@@ -41,11 +41,21 @@ def matmul(a: torch.Tensor, b: torch.Tensor, dim: int = -1, transpose_b: bool = 
     return _mm_samples_last(a, b, False, transpose_b)
 
 
+# Up to this many elements per operand a 3x3 product is one broadcast multiply and a sum (fewest kernel
+# launches); above it, three fused multiply-adds (least memory traffic).
+_SMALL_PRODUCT = 9 * 4096
+
+
 def _mm_samples_last(a: torch.Tensor, b: torch.Tensor, ta: bool, tb: bool) -> torch.Tensor:
     """op(a) @ op(b) for (..., 3, 3, N) operands, op = transpose where asked; a sum of three outer products."""
-
-    col = [c.unsqueeze(-2) for c in a.unbind(-3 if ta else -2)]  # columns of op(a), (..., 3, 1, N)
-    row = [r.unsqueeze(-3) for r in b.unbind(-2 if tb else -3)]  # rows of op(b), (..., 1, 3, N)
+    if ta:
+        a = a.transpose(-3, -2)
+    if tb:
+        b = b.transpose(-3, -2)
+    if max(a.numel(), b.numel()) <= _SMALL_PRODUCT:
+        return (a.unsqueeze(-2) * b.unsqueeze(-4)).sum(-3)  # (..., i, k, 1, N) * (..., 1, k, j, N)
+    col = [c.unsqueeze(-2) for c in a.unbind(-2)]  # columns of op(a), (..., 3, 1, N)
+    row = [r.unsqueeze(-3) for r in b.unbind(-3)]  # rows of op(b), (..., 1, 3, N)
     out = col[0] * row[0]
     out = torch.addcmul(out, col[1], row[1])
     return torch.addcmul(out, col[2], row[2])

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from learned_imu import NavState, predict, preintegrate, so3
+from learned_imu import NavState, predict, preintegrate, preintegration, so3
 from learned_imu.preintegration_reference import preintegrate_loop, preintegrate_pair_scan
 
 RATE_HZ = 200.0
@@ -119,9 +119,15 @@ def test_float32_tracks_float64():
         assert rel_err(getattr(f32, field).double(), getattr(ref, field).numpy()) < 1e-4, field
 
 
+@pytest.mark.parametrize("large_routes", [False, True])
 @pytest.mark.parametrize("at", [None, -1, 4])
-def test_gradcheck_deltas_and_covariance(at):
-    """Every sample (cumulative sums) and one reported sample (its own route: a weighted sum over samples)."""
+def test_gradcheck_deltas_and_covariance(at, large_routes, monkeypatch):
+    """Every sample (cumulative sums) and one reported sample (its own route: a matrix product over all noise
+    terms); small problems and, with the size thresholds at zero, the routes large problems take (odd-even
+    rotation scan, three fused multiply-adds per 3x3 product). Both scans share a closed-form backward."""
+    if large_routes:
+        monkeypatch.setattr(preintegration, "_SMALL_SCAN", 0)
+        monkeypatch.setattr(so3, "_SMALL_PRODUCT", 0)
     gyro, acc = imu_samples(7, max_rate=3.0, seed=7)
     rng = np.random.default_rng(8)
     inputs = (

@@ -56,7 +56,11 @@ def delta_errors(pre: Preintegrated, start: NavState, end: NavState, gravity) ->
     pos_gt = (r_i_t @ (end.pos - start.pos[..., None, :] - start.vel[..., None, :] * t - 0.5 * g * t * t)[..., None])[
         ..., 0
     ]
-    theta = so3.log(rot_gt) - so3.log(pre.rot)
+    # Rotation error in the chart of the covariance (GTSAM's tangent preintegration, theta = Log(dR)): to first
+    # order theta_gt - theta_pred = Jr^-1(theta_pred) Log(dR_pred^T dR_gt). Written this way, not as the difference
+    # of the two Logs, so that it does not jump by 2 pi when one of the two angles crosses pi and the other not.
+    jr_inv = so3.log_and_right_jacobian_inv(pre.rot)[1]
+    theta = (jr_inv @ so3.log(pre.rot.mT @ rot_gt)[..., None])[..., 0]
     return torch.cat([theta, pos_gt - pre.pos, vel_gt - pre.vel], dim=-1)
 
 

@@ -46,6 +46,25 @@ def test_perfect_imu_has_zero_errors_and_errors_match_predict():
     assert torch.allclose(pos_world, noisy[2].pos - world.pos, atol=1e-9)
 
 
+def test_rotation_error_is_continuous_where_the_delta_angle_crosses_pi():
+    """Predicted delta just below pi, true delta just above: the error is their small difference (in the chart
+    of the covariance), not 2 pi minus it (the two Logs alone would jump to opposite axes)."""
+    n, dt = 100, 0.01
+    gyro = torch.zeros(1, n, 3, dtype=torch.float64)
+    gyro[..., 2] = (np.pi - 0.003) / (n * dt)
+    acc = torch.zeros_like(gyro)
+    pre = preintegrate(gyro, acc, dt, at=[n - 1])
+    true_angle = np.pi + 0.004
+    c, s_ = np.cos(true_angle), np.sin(true_angle)
+    rot_gt = torch.tensor([[[[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]]]], dtype=torch.float64)
+    eye = torch.eye(3, dtype=torch.float64)[None]
+    start = NavState(eye, torch.zeros(1, 3, dtype=torch.float64), torch.zeros(1, 3, dtype=torch.float64))
+    end = NavState(rot_gt, pre.vel, pre.pos)
+    theta = delta_errors(pre, start, end, torch.zeros(3, dtype=torch.float64))[0, 0, :3]
+    # d theta = Jr^-1(theta) d phi; about the rotation axis itself Jr^-1 is the identity: 0.007 rad about z
+    assert torch.allclose(theta, torch.tensor([0.0, 0.0, 0.007], dtype=torch.float64), atol=1e-9), theta
+
+
 def test_propagated_covariance_is_calibrated_on_white_noise():
     model = ImuErrorModel(3e-3, 3e-2, 0.0, 0.0, 0.0, 0.0)  # white noise only, loud enough to dominate
     sim = simulate_with_truth("drone", duration_s=400.0, error_model=model, seed=1)

@@ -3,8 +3,10 @@
 Ground truth states at the start of a window (i) and at each supervised sample (j) become ground-truth deltas
 (Forster's, gravity removed): ``dR = R_i^T R_j``, ``dv = R_i^T (v_j - v_i - g t)``,
 ``dp = R_i^T (p_j - p_i - v_i t - g t^2 / 2)``. The error vector is [theta, p, v] in GTSAM's tangent order:
-``Log(dR_gt) - Log(dR)`` (tangent coordinates of the rotation, rad), ``dp_gt - dp`` (m), ``dv_gt - dv`` (m/s), all in
-the frame at i -- exactly the coordinates of ``Preintegrated.cov``, so the likelihood below is consistent.
+``Jr^-1(Log dR) Log(dR^T dR_gt)`` (to first order ``Log(dR_gt) - Log(dR)``, the tangent coordinates of the rotation,
+rad, but without that difference's 2 pi jump when one of the two angles crosses pi), ``dp_gt - dp`` (m),
+``dv_gt - dv`` (m/s), all in the frame at i -- the coordinates of ``Preintegrated.cov``, so the likelihood below is
+consistent.
 
 - state loss: Huber (smooth L1) on each error block, weighted per block;
 - covariance loss: Gaussian negative log-likelihood of the errors under the diagonal of the covariance,

@@ -92,6 +92,9 @@ class TrainConfig:
     plateau_patience: int = 5
     early_stop_patience: int = 0  # stop after this many epochs without a better validation loss; 0 = never
     calibration_steps: int = 200  # second stage: noise decoders alone on the NLL (0 = off; see train.py)
+    # then one scale per sensor's noise fitted on the validation windows (train.fit_noise_scales); only where the
+    # validation sequences are not the ones evaluated
+    scale_noise_on_val: bool = False
     remove_gravity: bool = False  # network input acc + R_gt^T g (official option; needs ground truth)
     seed: int = 0
 

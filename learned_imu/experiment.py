@@ -9,7 +9,8 @@ A run folder holds:
   ``val_p_rmse_m`` (means over the validation sequences at the configured interval);
 - ``last.pt`` after every epoch and ``best.pt`` at the best validation loss (``learned_imu.checkpoint``); when
   training ends, the noise decoders of ``best.pt`` are calibrated (``train.calibrate_uncertainty``,
-  ``train.calibration_steps``) and it is marked ``calibrated``.
+  ``train.calibration_steps``), with ``train.scale_noise_on_val`` its noise is then scaled to the validation
+  windows (``train.fit_noise_scales``, the scales kept as ``noise_scales``), and it is marked ``calibrated``.
 
 Running again on the same folder resumes from ``last.pt`` (same config required, except ``RESUMABLE_CHANGES``)
 and continues the metrics log;
@@ -38,13 +39,19 @@ from learned_imu.io import atomic_file, remove_temporaries
 from learned_imu.losses import LossWeights
 from learned_imu.model import AirImuNet, Correction, correct_sequence
 from learned_imu.sequence import ImuSequence
-from learned_imu.train import Trainer, calibrate_uncertainty
+from learned_imu.train import Trainer, calibrate_uncertainty, fit_noise_scales, scale_noise
 from learned_imu.windows import Windows, concat_windows, make_windows
 
 log = logging.getLogger(__name__)
 SIMULATOR = "simulator"
 # keys that may differ when resuming: the data may move, and the epoch budget may grow
-RESUMABLE_CHANGES = ("data.root", "train.epochs", "train.early_stop_patience", "train.calibration_steps")
+RESUMABLE_CHANGES = (
+    "data.root",
+    "train.epochs",
+    "train.early_stop_patience",
+    "train.calibration_steps",
+    "train.scale_noise_on_val",
+)
 RUN_FILES = ("config.yaml", "metrics.jsonl", "best.pt", "last.pt")
 
 
@@ -160,7 +167,8 @@ def train_run(
         if writer:
             _write_epoch(folder, cfg_dict, trainer, history, best, improved)
         log.info("%s epoch %d: %s", config.name, entry["epoch"], json.dumps(entry))
-    if writer and use_cov and t.calibration_steps > 0 and not best.get("calibrated", False):
+    calibrates = t.calibration_steps > 0 or t.scale_noise_on_val
+    if writer and use_cov and calibrates and not best.get("calibrated", False):
         _calibrate_best(folder, cfg_dict, trainer, best, t)
     barrier(world)  # every rank returns once the folder is complete
     return RunSummary(folder, trainer.epochs_done, int(best["epoch"]), best["val_loss"], best["seconds"])
@@ -180,13 +188,19 @@ def _calibrate_best(folder: Path, cfg_dict: dict, trainer: Trainer, best: dict, 
     """Second stage on the best checkpoint (``train.calibrate_uncertainty``); marks it ``calibrated``."""
     state = load_checkpoint(folder / "best.pt")["trainer"]
     trainer.model.load_state_dict(state["model"])
-    nll = calibrate_uncertainty(trainer.model, trainer.train, t.calibration_steps, t.batch_size, seed=t.seed)
+    best = {**best, "calibrated": True}
+    if t.calibration_steps > 0:
+        nll = calibrate_uncertainty(trainer.model, trainer.train, t.calibration_steps, t.batch_size, seed=t.seed)
+        best["calibration_nll"] = nll
+    if t.scale_noise_on_val:
+        best["noise_scales"] = list(fit_noise_scales(trainer.model, trainer.val))
+        scale_noise(trainer.model, *best["noise_scales"])
+        log.info("noise scaled by %.3g (gyro) and %.3g (acc) on the validation windows", *best["noise_scales"])
     state["model"] = trainer.model.state_dict()
-    best = {**best, "calibrated": True, "calibration_nll": nll}
     save_checkpoint(folder / "best.pt", cfg_dict, state, best)
     last = load_checkpoint(folder / "last.pt")
     save_checkpoint(folder / "last.pt", cfg_dict, last["trainer"], best)
-    log.info("calibrated the noise decoders of %s (NLL %.4f)", folder / "best.pt", nll)
+    log.info("calibrated the noise of %s", folder / "best.pt")
 
 
 def _resume(folder: Path, cfg_dict: dict, trainer: Trainer) -> tuple[list[dict], dict]:

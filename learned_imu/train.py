@@ -12,13 +12,14 @@ are part of ``Trainer.state_dict``, so a resumed run continues exactly where the
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
 
 from learned_imu.distributed import World, from_writer, global_loss, shard, wrap
-from learned_imu.losses import LossWeights, delta_errors, total_loss
+from learned_imu.losses import VARIANCE_FLOOR, LossWeights, delta_errors, total_loss
 from learned_imu.model import AirImuNet
 from learned_imu.preintegration import preintegrate
 from learned_imu.windows import Windows
@@ -195,3 +196,52 @@ def calibrate_uncertainty(
         for p, flag in frozen:
             p.requires_grad_(flag)
     return sum(losses[-20:]) / max(1, len(losses[-20:]))
+
+
+def fit_noise_scales(model: AirImuNet, windows: Windows, batch_size: int = 64) -> tuple[float, float]:
+    """Scales (gyro, acc) of the model's noise densities that maximise the likelihood of ``windows``' errors.
+
+    The propagated covariance is linear in the densities, ``Sigma = Sigma_gyro + Sigma_acc``, so scaling them by
+    (s_g, s_a) gives exactly ``s_g Sigma_gyro + s_a Sigma_acc``: two preintegrations, then a two-parameter fit of
+    the diagonal Gaussian NLL (the covariance loss's), in float64. Meant for windows the corrections were not
+    fitted to (the validation set): residuals there are larger than on the training windows, where the noise
+    decoders learned them, and one global scale per sensor is what a few held-out windows can pin down without
+    overfitting (variance scaling, as temperature scaling for classifiers).
+    """
+    model.eval()
+    errors, gyro_var, acc_var = [], [], []
+    with torch.no_grad():
+        for first in range(0, len(windows), batch_size):
+            batch = windows.select(torch.arange(first, min(first + batch_size, len(windows))))
+            out = model(batch.gyro, batch.acc, gravity_imu=batch.gravity_imu)
+            gyro, acc, dt = out.gyro.double(), out.acc.double(), batch.dt.double()
+            gyro_cov, acc_cov = out.gyro_cov.double(), out.acc_cov.double()
+            from_gyro = preintegrate(gyro, acc, dt, gyro_cov, torch.zeros_like(acc_cov), at=batch.at)
+            from_acc = preintegrate(gyro, acc, dt, torch.zeros_like(gyro_cov), acc_cov, at=batch.at)
+            start, end = (type(s)(*(x.double() for x in (s.rot, s.vel, s.pos))) for s in (batch.start, batch.targets))
+            errors.append(delta_errors(from_gyro, start, end, batch.gravity.double()))
+            gyro_var.append(torch.diagonal(from_gyro.cov, dim1=-2, dim2=-1))
+            acc_var.append(torch.diagonal(from_acc.cov, dim1=-2, dim2=-1))
+    squared, gyro_var, acc_var = torch.cat(errors).square(), torch.cat(gyro_var), torch.cat(acc_var)
+    log_scales = torch.zeros(2, dtype=torch.float64, requires_grad=True)
+    optimiser = torch.optim.LBFGS([log_scales], max_iter=100, line_search_fn="strong_wolfe")
+
+    def nll():
+        optimiser.zero_grad()
+        variance = torch.exp(log_scales[0]) * gyro_var + torch.exp(log_scales[1]) * acc_var + VARIANCE_FLOOR
+        loss = (torch.log(variance) + squared / variance).mean()
+        loss.backward()
+        return loss
+
+    optimiser.step(nll)
+    gyro_scale, acc_scale = torch.exp(log_scales.detach()).tolist()
+    return gyro_scale, acc_scale
+
+
+def scale_noise(model: AirImuNet, gyro_scale: float, acc_scale: float) -> None:
+    """Multiply the model's output noise densities by the given factors (in place, through its buffers)."""
+    if not (gyro_scale > 0 and acc_scale > 0):
+        raise ValueError(f"scale_noise: scales must be positive, got {gyro_scale}, {acc_scale}")
+    with torch.no_grad():
+        model.log_init_gyro_density += math.log(gyro_scale)
+        model.log_init_acc_density += math.log(acc_scale)

@@ -156,3 +156,17 @@ def test_ablate_imu_cli_with_seeds_prints_the_summary_and_writes_seeded_rows(tmp
     assert sorted(r["seed"] for r in rows if r["variant"] == "AirIMU") == [0, 1]
     bad = CliRunner().invoke(app, ["ablate-imu", "--config", str(config), "--seeds", "0,x"])
     assert bad.exit_code != 0 and "--seeds" in bad.output
+
+
+def test_noise_scaled_on_the_validation_windows_when_asked(tmp_path):
+    config = dataclasses.replace(
+        TINY, train=dataclasses.replace(TINY.train, epochs=1, calibration_steps=2, scale_noise_on_val=True)
+    )
+    train_run(config, tmp_path / "run", progress=False)
+    best = load_checkpoint(tmp_path / "run" / "best.pt")
+    scales = best["best"]["noise_scales"]
+    assert best["best"]["calibrated"] and len(scales) == 2 and min(scales) > 0
+    model, _ = model_from_checkpoint(tmp_path / "run" / "best.pt")
+    init = dataclasses.asdict(TINY.model)
+    assert float(model.log_init_gyro_density) == pytest.approx(np.log(init["init_gyro_density"] * scales[0]), abs=1e-5)
+    assert float(model.log_init_acc_density) == pytest.approx(np.log(init["init_acc_density"] * scales[1]), abs=1e-5)

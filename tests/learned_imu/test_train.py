@@ -7,10 +7,10 @@ import pytest
 import torch
 
 from learned_imu.evaluate import evaluate
-from learned_imu.model import AirImuNet, correct_sequence
+from learned_imu.model import AirImuNet, Correction, correct_sequence
 from learned_imu.sequence import GroundTruth, ImuSequence
 from learned_imu.simulator import ImuErrorModel, simulate, simulate_with_truth
-from learned_imu.train import fit
+from learned_imu.train import fit, fit_noise_scales, scale_noise
 from learned_imu.windows import make_windows
 
 # constant turn-on biases (0.5 deg/s, 0.05 m/s^2 one-sigma) and light white noise
@@ -57,3 +57,43 @@ def test_training_learns_the_bias_and_generalises_to_unseen_motion():
     assert learned.roe_deg < 0.3 * raw.roe_deg  # measured 0.370 -> 0.014 deg over 1 s
     learned_bias = -corrected.d_gyro.mean(dim=0).double().numpy()  # correction = -bias
     np.testing.assert_allclose(learned_bias, sim.gyro_bias[0], rtol=0.15)
+
+
+class _ConstantNoise(torch.nn.Module):
+    """A stand-in model: no corrections, the given constant noise densities."""
+
+    def __init__(self, gyro_density: float, acc_density: float):
+        super().__init__()
+        self.gyro_density, self.acc_density = gyro_density, acc_density
+
+    def forward(self, gyro, acc, gravity_imu=None):
+        zero = torch.zeros_like(gyro)
+        gyro_cov = torch.as_tensor(self.gyro_density, dtype=gyro.dtype).expand_as(gyro)
+        acc_cov = torch.as_tensor(self.acc_density, dtype=acc.dtype).expand_as(acc)
+        return Correction(gyro, acc, zero, zero, gyro_cov, acc_cov)
+
+
+def test_noise_scales_fitted_on_held_out_windows_recover_a_misstated_noise():
+    """White noise only, the stand-in's densities 4x too small (gyro) and 9x too large (acc): the fitted scales
+    undo both to within the sampling error of 150 windows, and then the NSE of every block is about 1."""
+    error_model = ImuErrorModel(3e-3, 3e-2, 0.0, 0.0, 0.0, 0.0)
+    sim = simulate_with_truth("drone", duration_s=150.0, error_model=error_model, seed=2)
+    windows = make_windows(sim.sequence, length=200, every=50, dtype=torch.float64)
+    gyro_density, acc_density = error_model.noise_densities()
+    model = _ConstantNoise(gyro_density / 4, acc_density * 9)
+    gyro_scale, acc_scale = fit_noise_scales(model, windows)
+    assert gyro_scale == pytest.approx(4.0, rel=0.15) and acc_scale == pytest.approx(1 / 9, rel=0.15)
+
+
+def test_scale_noise_multiplies_the_output_densities_exactly():
+    model = AirImuNet(conv_channels=(8,), gru_sizes=(8,), decoder_hidden=8).eval()
+    gyro, acc = torch.randn(1, 90, 3), torch.randn(1, 90, 3)
+    with torch.no_grad():
+        before = model(gyro, acc)
+        scale_noise(model, 2.5, 0.3)
+        after = model(gyro, acc)
+    assert torch.allclose(after.gyro_cov, 2.5 * before.gyro_cov, rtol=1e-5)
+    assert torch.allclose(after.acc_cov, 0.3 * before.acc_cov, rtol=1e-5)
+    assert torch.equal(after.gyro, before.gyro)
+    with pytest.raises(ValueError, match="positive"):
+        scale_noise(model, 0.0, 1.0)

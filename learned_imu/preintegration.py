@@ -188,7 +188,7 @@ class _CumulativeRotation(torch.autograd.Function):
     def backward(ctx, grad):
         (rot,) = ctx.saved_tensors
         terms = _mm(grad.contiguous(), rot, True)  # G_k R_k^T
-        suffix = terms.sum(dim=-1, keepdim=True) - torch.cumsum(terms, dim=-1) + terms  # sum over k >= j
+        suffix = _after(terms) + terms  # sum over k >= j
         rot_before = torch.cat([_eye_like(rot[..., :1]), rot[..., :-1]], dim=-1)
         return _mm(_mm(_tr(rot_before), suffix), rot)
 
@@ -262,8 +262,9 @@ def _final_covariance(rot_end, lever, rot_before, force, h, gyro_var, acc_var) -
     ``[uv_j]x L_j`` and the position error through ``[up_j]x L_j``, with ``uv_j = -sum_{i>j} f_i dt_i`` and
     ``up_j = -sum_{i>j} c_i f_i dt_i`` (``f``: specific force in the start frame, ``c_i`` the time after sample
     i plus dt_i / 2); the acc noise enters velocity through ``R_j`` (``rot_before``) and position through
-    ``c_j R_j``. Stacking these 9x3 blocks of every sample into W (9 x 6N), the covariance is
-    ``W diag(var) W^T``: a GEMM with an inner size of 6N instead of per-sample 3x3 products.
+    ``c_j R_j``. With these blocks of every sample side by side (gyro W_g: 9 x 3N, acc W_a: 6 x 3N), the
+    covariance is ``W_g diag(var_g) W_g^T + W_a diag(var_a) W_a^T``: two GEMMs with an inner size of 3N instead
+    of per-sample 3x3 products.
     ``gyro_var``, ``acc_var``: per-sample discrete variances of the integrated noise (density * dt).
     """
     c = _after(h) + 0.5 * h  # (..., 1, N), s

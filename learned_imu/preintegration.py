@@ -297,17 +297,20 @@ class _Gram(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, w, v):
-        ctx.save_for_backward(w, v)
-        return (w * v[..., None, :]) @ w.mT
+        wv = w * v[..., None, :]
+        ctx.save_for_backward(w, v, wv)
+        return wv @ w.mT
 
     @staticmethod
     @torch.autograd.function.once_differentiable
     def backward(ctx, grad):
-        w, v = ctx.saved_tensors
-        gw = (grad + grad.mT) @ w
+        w, v, wv = ctx.saved_tensors
+        sym = grad + grad.mT
+        if not ctx.needs_input_grad[1]:  # constant noise: dW = (G + G^T) (W diag(v)), one GEMM
+            return sym @ wv, None
+        gw = sym @ w
         grad_w = gw * v[..., None, :] if ctx.needs_input_grad[0] else None
-        grad_v = 0.5 * (gw * w).sum(dim=-2) if ctx.needs_input_grad[1] else None
-        return grad_w, grad_v
+        return grad_w, 0.5 * (gw * w).sum(dim=-2)
 
 
 def _after(terms: torch.Tensor) -> torch.Tensor:

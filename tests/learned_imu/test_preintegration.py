@@ -144,6 +144,19 @@ def test_gradcheck_deltas_and_covariance(at, large_routes, monkeypatch):
     assert torch.autograd.gradcheck(fn, inputs, eps=1e-6, atol=1e-7, rtol=1e-5)
 
 
+@pytest.mark.parametrize("at", [None, -1])
+def test_gradcheck_with_constant_noise(at):
+    """Densities that are not differentiated (a fixed noise, as in GTSAM's params) take a shorter backward."""
+    gyro, acc = imu_samples(7, max_rate=3.0, seed=11)
+    inputs = (torch.tensor(gyro, requires_grad=True), torch.tensor(acc, requires_grad=True))
+
+    def fn(g, a):
+        out = preintegrate(g, a, 0.01, 3e-4, [2e-3, 3e-3, 4e-3], at=at)
+        return out.rot, out.vel, out.pos, out.cov
+
+    assert torch.autograd.gradcheck(fn, inputs, eps=1e-6, atol=1e-7, rtol=1e-5)
+
+
 def test_batch_equals_items_alone():
     gyro, acc = imu_samples(37, max_rate=2.0, seed=9, batch=(3, 2))
     g, a = torch.tensor(gyro), torch.tensor(acc)

@@ -167,9 +167,11 @@ def train_run(
         if writer:
             _write_epoch(folder, cfg_dict, trainer, history, best, improved)
         log.info("%s epoch %d: %s", config.name, entry["epoch"], json.dumps(entry))
-    calibrates = t.calibration_steps > 0 or t.scale_noise_on_val
-    if writer and use_cov and calibrates and not best.get("calibrated", False):
-        _calibrate_best(folder, cfg_dict, trainer, best, t)
+    # a finished run asked for the scaling later gets it then (the second stage is not repeated)
+    stage = t.calibration_steps > 0 and not best.get("calibrated", False)
+    scale = t.scale_noise_on_val and "noise_scales" not in best
+    if writer and use_cov and (stage or scale):
+        _calibrate_best(folder, cfg_dict, trainer, best, t, stage, scale)
     barrier(world)  # every rank returns once the folder is complete
     return RunSummary(folder, trainer.epochs_done, int(best["epoch"]), best["val_loss"], best["seconds"])
 
@@ -184,15 +186,16 @@ def _write_epoch(folder: Path, cfg_dict: dict, trainer: Trainer, history: list[d
     save_checkpoint(folder / "last.pt", cfg_dict, trainer.state_dict(), best)
 
 
-def _calibrate_best(folder: Path, cfg_dict: dict, trainer: Trainer, best: dict, t) -> None:
-    """Second stage on the best checkpoint (``train.calibrate_uncertainty``); marks it ``calibrated``."""
+def _calibrate_best(folder: Path, cfg_dict: dict, trainer: Trainer, best: dict, t, stage: bool, scale: bool) -> None:
+    """Second stage on the best checkpoint (``train.calibrate_uncertainty``), then the noise scaling on the
+    validation windows (``train.fit_noise_scales``), as asked; marks it ``calibrated``."""
     state = load_checkpoint(folder / "best.pt")["trainer"]
     trainer.model.load_state_dict(state["model"])
     best = {**best, "calibrated": True}
-    if t.calibration_steps > 0:
+    if stage:
         nll = calibrate_uncertainty(trainer.model, trainer.train, t.calibration_steps, t.batch_size, seed=t.seed)
         best["calibration_nll"] = nll
-    if t.scale_noise_on_val:
+    if scale:
         best["noise_scales"] = list(fit_noise_scales(trainer.model, trainer.val))
         scale_noise(trainer.model, *best["noise_scales"])
         log.info("noise scaled by %.3g (gyro) and %.3g (acc) on the validation windows", *best["noise_scales"])

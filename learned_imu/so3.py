@@ -184,7 +184,7 @@ def matrix_to_quaternion_wxyz(rot: torch.Tensor, dim: int = -1) -> torch.Tensor:
 
     Shepperd's method: of the four algebraically equal candidates, the one with the largest denominator is kept.
     """
-    m = [[rot.select(dim - 1, i).select(dim, j) for j in range(3)] for i in range(3)]  # entries (...)
+    m = [row.unbind(dim) for row in rot.unbind(dim - 1)]  # entries (...)
     tr = m[0][0] + m[1][1] + m[2][2]
     # candidate i has 4 q_i^2 = 1 + 2 diag_i - tr (with diag_0 = tr)
     four_q_sq = torch.stack([1 + tr, 1 + 2 * m[0][0] - tr, 1 + 2 * m[1][1] - tr, 1 + 2 * m[2][2] - tr], -1)
@@ -235,7 +235,7 @@ def log_and_right_jacobian_inv(rot: torch.Tensor, dim: int = -1) -> tuple[torch.
 
     Falls back to the quaternion route of ``log`` when any angle is within ~8 deg of pi.
     """
-    m = [[rot.select(dim - 1, i).select(dim, j) for j in range(3)] for i in range(3)]
+    m = [row.unbind(dim) for row in rot.unbind(dim - 1)]
     cos = 0.5 * (m[0][0] + m[1][1] + m[2][2] - 1)
     if bool((cos < _NEAR_PI_COS).any()):
         phi = log(rot, dim)

@@ -170,3 +170,18 @@ def test_noise_scaled_on_the_validation_windows_when_asked(tmp_path):
     init = dataclasses.asdict(TINY.model)
     assert float(model.log_init_gyro_density) == pytest.approx(np.log(init["init_gyro_density"] * scales[0]), abs=1e-5)
     assert float(model.log_init_acc_density) == pytest.approx(np.log(init["init_acc_density"] * scales[1]), abs=1e-5)
+
+
+
+def test_noise_scaling_asked_for_after_a_run_finished_is_applied_once(tmp_path):
+    config = dataclasses.replace(TINY, train=dataclasses.replace(TINY.train, epochs=1, calibration_steps=2))
+    train_run(config, tmp_path / "run", progress=False)
+    assert "noise_scales" not in load_checkpoint(tmp_path / "run" / "best.pt")["best"]
+    later = dataclasses.replace(config, train=dataclasses.replace(config.train, scale_noise_on_val=True))
+    train_run(later, tmp_path / "run", progress=False)
+    first = load_checkpoint(tmp_path / "run" / "best.pt")
+    train_run(later, tmp_path / "run", progress=False)  # finished and scaled: nothing changes
+    again = load_checkpoint(tmp_path / "run" / "best.pt")
+    assert len(first["best"]["noise_scales"]) == 2 and first["best"] == again["best"]
+    model_state = first["trainer"]["model"]
+    assert torch.equal(model_state["log_init_gyro_density"], again["trainer"]["model"]["log_init_gyro_density"])

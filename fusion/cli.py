@@ -263,6 +263,44 @@ def export(
     Console().print(f"{len(index) - 1} keyframe intervals of {sequence.name} written to {written}")
 
 
+@app.command("scale-noise")
+def scale_noise_command(
+    checkpoint: str = typer.Option(..., help="trained model (best.pt)"),
+    dataset: str = typer.Option(..., help="reader name of a held-out sequence with ground truth"),
+    path: str = typer.Option(..., help="the held-out sequence (not trained on, not evaluated on)"),
+    out: str = typer.Option(..., help="the scaled checkpoint to write (may be CHECKPOINT itself)"),
+    imu_file: str = typer.Option(None, help="EuRoC/TUM-VI: IMU csv relative to the sequence folder"),
+) -> None:
+    """Scale a trained model's noise densities (one factor per sensor) to a held-out sequence's windows by maximum
+    likelihood, so that its covariance is calibrated on data it has not seen (learned_imu.train.fit_noise_scales)."""
+    from rich.console import Console
+
+    from learned_imu.ablation import calibration
+    from learned_imu.checkpoint import load_checkpoint, model_from_checkpoint, save_checkpoint
+    from learned_imu.config import ExperimentConfig, from_dict
+    from learned_imu.experiment import build_windows
+    from learned_imu.train import fit_noise_scales, scale_noise
+
+    payload = load_checkpoint(checkpoint)
+    model, config = model_from_checkpoint(checkpoint)
+    cfg = from_dict(ExperimentConfig, config, source=f"{checkpoint} (stored config)")
+    sequence = _read_one(dataset, path, imu_file)
+    if sequence.gt is None:
+        raise typer.BadParameter(f"{path}: the sequence has no ground truth; scaling the noise needs it")
+    before = calibration(model, sequence, cfg)
+    scales = fit_noise_scales(model, build_windows([sequence], cfg, None))
+    scale_noise(model, *scales)
+    after = calibration(model, sequence, cfg)
+    previous = payload["best"].get("noise_scales", [1.0, 1.0])
+    best = {**payload["best"], "noise_scales": [previous[0] * scales[0], previous[1] * scales[1]]}
+    written = save_checkpoint(out, config, {**payload["trainer"], "model": model.state_dict()}, best)
+    Console().print(
+        f"noise scaled by {scales[0]:.3g} (gyro) and {scales[1]:.3g} (acc) on {sequence.name}; NSE rot/pos/vel "
+        f"{before[0]:.2f}/{before[1]:.2f}/{before[2]:.2f} -> {after[0]:.2f}/{after[1]:.2f}/{after[2]:.2f}; "
+        f"written to {written}"
+    )
+
+
 @app.command("export-model")
 def export_model(
     checkpoint: str = typer.Option(..., help="trained model (best.pt)"),

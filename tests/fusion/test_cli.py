@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 
 def test_help_lists_commands_without_importing_torch_gtsam_or_rerun():
@@ -84,7 +85,7 @@ def test_train_then_evaluate_and_export_with_the_checkpoint(shared_data, tmp_pat
 
     from factors.export_file import load_export
     from fusion.cli import app
-    from learned_imu.checkpoint import model_from_checkpoint
+    from learned_imu.checkpoint import load_checkpoint, model_from_checkpoint
     from learned_imu.datasets import read_sequence
     from learned_imu.evaluate import evaluate
     from learned_imu.experiment import correct
@@ -121,6 +122,25 @@ def test_train_then_evaluate_and_export_with_the_checkpoint(shared_data, tmp_pat
     result = CliRunner().invoke(app, ["export", *where, "--keyframes", str(times), "--out", str(npz)])
     assert result.exit_code == 0, result.output
     assert load_export(npz).arrays["keyframe_index"].tolist() == [0, 250, 900]
+
+    # scale the noise on a held-out sequence: densities scaled exactly, scales kept; a second pass on the same
+    # sequence finds nothing left to scale (the fit is at its optimum) and keeps the product
+    held_out = ["--dataset", "euroc", "--path", str(seq_path), "--imu-file", imu_file]
+    scaled, stored = tmp_path / "scaled.pt", []
+    for source in (run / "best.pt", scaled):
+        result = CliRunner().invoke(app, ["scale-noise", "--checkpoint", str(source), *held_out, "--out", str(scaled)])
+        assert result.exit_code == 0, result.output
+        assert "noise scaled by" in result.output and "NSE rot/pos/vel" in result.output
+        stored.append(load_checkpoint(scaled)["best"]["noise_scales"])
+    assert stored[1] == pytest.approx(stored[0], rel=1e-3) and stored[0] != pytest.approx([1.0, 1.0], rel=1e-3)
+    first, _ = model_from_checkpoint(run / "best.pt")
+    twice, _ = model_from_checkpoint(scaled)
+    gyro, acc = (torch.as_tensor(x[None, :900], dtype=torch.float32) for x in (sequence.gyro, sequence.acc))
+    with torch.no_grad():
+        a, b = first(gyro, acc), twice(gyro, acc)
+    assert torch.allclose(b.gyro_cov, stored[1][0] * a.gyro_cov, rtol=1e-4)
+    assert torch.allclose(b.acc_cov, stored[1][1] * a.acc_cov, rtol=1e-4)
+    assert torch.equal(b.gyro, a.gyro)
 
     bad = tmp_path / "bad.yaml"
     bad.write_text(TINY_YAML + "extra_key: 1\n")

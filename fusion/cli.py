@@ -272,14 +272,13 @@ def scale_noise_command(
     imu_file: str = typer.Option(None, help="EuRoC/TUM-VI: IMU csv relative to the sequence folder"),
 ) -> None:
     """Scale a trained model's noise densities (one factor per sensor) to a held-out sequence's windows by maximum
-    likelihood, so that its covariance is calibrated on data it has not seen (learned_imu.train.fit_noise_scales)."""
+    likelihood, so that its covariance is calibrated on data it has not seen (learned_imu.train.noise_residuals)."""
     from rich.console import Console
 
-    from learned_imu.ablation import calibration
     from learned_imu.checkpoint import load_checkpoint, model_from_checkpoint, save_checkpoint
     from learned_imu.config import ExperimentConfig, from_dict
     from learned_imu.experiment import build_windows
-    from learned_imu.train import fit_noise_scales, scale_noise
+    from learned_imu.train import noise_residuals, scale_noise
 
     payload = load_checkpoint(checkpoint)
     model, config = model_from_checkpoint(checkpoint)
@@ -287,10 +286,10 @@ def scale_noise_command(
     sequence = _read_one(dataset, path, imu_file)
     if sequence.gt is None:
         raise typer.BadParameter(f"{path}: the sequence has no ground truth; scaling the noise needs it")
-    before = calibration(model, sequence, cfg)
-    scales = fit_noise_scales(model, build_windows([sequence], cfg, None))
+    residuals = noise_residuals(model, build_windows([sequence], cfg, None))
+    scales = residuals.best_scales()
+    before, after = residuals.nse(), residuals.nse(*scales)
     scale_noise(model, *scales)
-    after = calibration(model, sequence, cfg)
     previous = payload["best"].get("noise_scales", [1.0, 1.0])
     best = {**payload["best"], "noise_scales": [previous[0] * scales[0], previous[1] * scales[1]]}
     written = save_checkpoint(out, config, {**payload["trainer"], "model": model.state_dict()}, best)

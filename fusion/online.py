@@ -34,6 +34,7 @@ import torch
 from factors import GpsFactor, gps_noise, learned_pim
 from factors.gps import ROBUST_LOSSES
 from fusion.graph import Trajectory
+from fusion.initial import priors_on_first
 from learned_imu.errors import AirImuError, InputError
 from learned_imu.model import DEFAULT_ACC_DENSITY, DEFAULT_GYRO_DENSITY, AirImuNet
 
@@ -113,9 +114,9 @@ class OnlineFusion:
         self._gravity = _vector("gravity", gravity)
         rot, pos, vel = (np.asarray(x, dtype=float) for x in initial_state)
         self._first = (gtsam.Pose3(gtsam.Rot3(rot), _vector("initial pos", pos)), _vector("initial vel", vel))
-        self._prior_sigmas = np.array([prior_rot_sigma_rad] * 3 + [prior_pos_sigma_m] * 3 + [prior_vel_sigma_m_s] * 3)
+        self._prior_sigmas = (float(prior_rot_sigma_rad), float(prior_pos_sigma_m), float(prior_vel_sigma_m_s))
         self._density = np.hstack([np.broadcast_to(np.asarray(d, float), (3,)) for d in (gyro_density, acc_density)])
-        if not np.all(self._density > 0) or not np.all(self._prior_sigmas > 0):
+        if not np.all(self._density > 0) or min(self._prior_sigmas) <= 0:
             raise InputError("OnlineFusion: noise densities and prior sigmas must be > 0")
         if gps_robust not in (None, *ROBUST_LOSSES):
             raise InputError(
@@ -227,8 +228,8 @@ class OnlineFusion:
         """Keyframe 0 at the first sample: priors on its state."""
         pose, vel = self._first
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        graph.add(gtsam.PriorFactorPose3(X(0), pose, gtsam.noiseModel.Diagonal.Sigmas(self._prior_sigmas[:6])))
-        graph.add(gtsam.PriorFactorVector(V(0), vel, gtsam.noiseModel.Diagonal.Sigmas(self._prior_sigmas[6:])))
+        for prior in priors_on_first(pose, vel, *self._prior_sigmas):
+            graph.add(prior)
         values.insert(X(0), pose)
         values.insert(V(0), vel)
         self._in_graph = 1

@@ -23,7 +23,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from learned_imu.baselines import average_bias
 from learned_imu.checkpoint import model_from_checkpoint
@@ -31,10 +30,9 @@ from learned_imu.config import ExperimentConfig
 from learned_imu.evaluate import evaluate
 from learned_imu.experiment import build_windows, correct, load_sequences, train_run
 from learned_imu.io import write_csv_atomic, write_json_atomic
-from learned_imu.losses import delta_errors, normalised_squared_errors
 from learned_imu.model import AirImuNet
-from learned_imu.preintegration import preintegrate
 from learned_imu.sequence import ImuSequence
+from learned_imu.train import noise_residuals
 
 log = logging.getLogger(__name__)
 
@@ -162,20 +160,9 @@ def run_variant(
     return rows
 
 
-@torch.no_grad()
 def calibration(model: AirImuNet, sequence: ImuSequence, config: ExperimentConfig) -> np.ndarray:
     """(3,) mean e^2 / sigma^2 of rotation, position, velocity over the sequence's windows (see module doc)."""
-    windows = build_windows([sequence], config, None)
-    model.eval()
-    out = model(windows.gyro, windows.acc, gravity_imu=windows.gravity_imu)
-    pre = preintegrate(
-        out.gyro.double(), out.acc.double(), windows.dt.double(), out.gyro_cov.double(), out.acc_cov.double(),
-        at=windows.at,
-    )  # fmt: skip
-    start = type(windows.start)(*(x.double() for x in (windows.start.rot, windows.start.vel, windows.start.pos)))
-    end = type(windows.targets)(*(x.double() for x in (windows.targets.rot, windows.targets.vel, windows.targets.pos)))
-    errors = delta_errors(pre, start, end, windows.gravity.double())
-    return normalised_squared_errors(errors, pre.cov).numpy()
+    return noise_residuals(model, build_windows([sequence], config, None)).nse()
 
 
 def write_rows(rows: list[AblationRow], json_path: str | Path | None = None, csv_path: str | Path | None = None):

@@ -91,6 +91,10 @@ def total_loss(errors: torch.Tensor, cov: torch.Tensor | None, weights: LossWeig
 
 def normalised_squared_errors(errors: torch.Tensor, cov: torch.Tensor) -> torch.Tensor:
     """(3,) mean of e^2 / sigma^2 over the rotation, position and velocity blocks (1 when calibrated)."""
-    variance = torch.diagonal(cov, dim1=-2, dim2=-1) + VARIANCE_FLOOR
-    ratio = (errors.square() / variance).unflatten(-1, (3, 3))
+    return normalised_squared_errors_of_variance(errors, torch.diagonal(cov, dim1=-2, dim2=-1))
+
+
+def normalised_squared_errors_of_variance(errors: torch.Tensor, variance: torch.Tensor) -> torch.Tensor:
+    """``normalised_squared_errors`` under per-component variances (..., 9) instead of a covariance."""
+    ratio = (errors.square() / (variance + VARIANCE_FLOOR)).unflatten(-1, (3, 3))
     return ratio.mean(dim=tuple(range(ratio.ndim - 2)) + (-1,))

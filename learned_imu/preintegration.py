@@ -226,13 +226,15 @@ def _odd_even_scan(mats: torch.Tensor) -> torch.Tensor:
 def _propagate_covariance(step_jacobian, h, rot, rot_before, force, gyro_cov, acc_cov, index) -> torch.Tensor:
     """Covariance (..., 9, 9, K) in GTSAM's tangent chart after the samples ``index`` (all if None); see the
     module docstring. Samples-last layout throughout; ``h`` is dt shaped (..., 1, N)."""
+    if index is not None and index.numel() == 1:  # only the samples up to it matter
+        end = int(index) + 1
+        first = (t[..., :end] for t in (rot, step_jacobian, rot_before, force, h, gyro_cov, acc_cov))
+        rot, step_jacobian, rot_before, force, h, gyro_cov, acc_cov = first  # a (3, 1) diagonal stays as it is
+        lever = _mm(rot, step_jacobian)
+        return _final_covariance(rot[..., -1], lever, rot_before, force, h, gyro_cov * h, acc_cov * h)[..., None]
     hh = h[..., None, :, :]  # dt for matrices, (..., 1, 1, N)
     # Per-sample noise injected into the start-frame error state [phi, v, p].
     lever = _mm(rot, step_jacobian)  # d phi_{k+1} / d(gyro noise dt), Jr(w dt) of each step
-    if index is not None and index.numel() == 1:
-        end = int(index) + 1
-        terms = (lever, rot_before, force, h, gyro_cov * h, acc_cov * h)
-        return _final_covariance(rot[..., end - 1], *(t[..., :end] for t in terms))[..., None]
     g_phi = _mm(lever * (gyro_cov * h)[..., None, :, :], lever, True)  # Cov of the phi increment
     q_acc = _mm(rot_before * (acc_cov * h)[..., None, :, :], rot_before, True)  # Cov of the v increment
     m = -so3.hat(force, dim=-2) * hh  # d v_{k+1} / d phi_k

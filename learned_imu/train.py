@@ -16,10 +16,17 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from learned_imu.distributed import World, from_writer, global_loss, shard, wrap
-from learned_imu.losses import VARIANCE_FLOOR, LossWeights, delta_errors, total_loss
+from learned_imu.losses import (
+    VARIANCE_FLOOR,
+    LossWeights,
+    delta_errors,
+    normalised_squared_errors_of_variance,
+    total_loss,
+)
 from learned_imu.model import AirImuNet
 from learned_imu.preintegration import preintegrate
 from learned_imu.windows import Windows
@@ -198,44 +205,71 @@ def calibrate_uncertainty(
     return sum(losses[-20:]) / max(1, len(losses[-20:]))
 
 
-def fit_noise_scales(model: AirImuNet, windows: Windows, batch_size: int = 64) -> tuple[float, float]:
-    """Scales (gyro, acc) of the model's noise densities that maximise the likelihood of ``windows``' errors.
+@dataclass(frozen=True, eq=False)
+class NoiseResiduals:
+    """A model's delta errors on windows (M, K, 9) and the diagonal variances (M, K, 9) that its gyro noise and its
+    acc noise contribute to their covariance, float64 (``noise_residuals``).
 
-    The propagated covariance is linear in the densities, ``Sigma = Sigma_gyro + Sigma_acc``, so scaling them by
-    (s_g, s_a) gives exactly ``s_g Sigma_gyro + s_a Sigma_acc``: two preintegrations, then a two-parameter fit of
-    the diagonal Gaussian NLL (the covariance loss's), in float64. Meant for windows the corrections were not
-    fitted to (the validation set): residuals there are larger than on the training windows, where the noise
-    decoders learned them, and one global scale per sensor is what a few held-out windows can pin down without
-    overfitting (variance scaling, as temperature scaling for classifiers).
-    """
+    The propagated covariance is linear in the densities, so densities scaled by (s_g, s_a) have exactly the
+    variances ``s_g gyro_var + s_a acc_var``: the calibration under any scaling follows without running the model
+    again."""
+
+    errors: torch.Tensor
+    gyro_var: torch.Tensor
+    acc_var: torch.Tensor
+
+    def nse(self, gyro_scale: float = 1.0, acc_scale: float = 1.0) -> np.ndarray:
+        """(3,) mean e^2 / sigma^2 of rotation, position, velocity with the densities scaled as given."""
+        variance = gyro_scale * self.gyro_var + acc_scale * self.acc_var
+        return normalised_squared_errors_of_variance(self.errors, variance).numpy()
+
+    def best_scales(self) -> tuple[float, float]:
+        """The (gyro, acc) density scales of maximum likelihood: a two-parameter fit of the diagonal Gaussian NLL
+        (the covariance loss's)."""
+        squared = self.errors.square()
+        log_scales = torch.zeros(2, dtype=torch.float64, requires_grad=True)
+        optimiser = torch.optim.LBFGS([log_scales], max_iter=100, line_search_fn="strong_wolfe")
+
+        def nll():
+            optimiser.zero_grad()
+            scales = torch.exp(log_scales)
+            variance = scales[0] * self.gyro_var + scales[1] * self.acc_var + VARIANCE_FLOOR
+            loss = (torch.log(variance) + squared / variance).mean()
+            loss.backward()
+            return loss
+
+        optimiser.step(nll)
+        gyro_scale, acc_scale = torch.exp(log_scales.detach()).tolist()
+        return gyro_scale, acc_scale
+
+
+@torch.no_grad()
+def noise_residuals(model: AirImuNet, windows: Windows, batch_size: int = 64) -> NoiseResiduals:
+    """The model (eval mode) on ``windows``: its errors and its two noise variances (see ``NoiseResiduals``),
+    from two float64 preintegrations per batch, one with each sensor's noise alone."""
     model.eval()
     errors, gyro_var, acc_var = [], [], []
-    with torch.no_grad():
-        for first in range(0, len(windows), batch_size):
-            batch = windows.select(torch.arange(first, min(first + batch_size, len(windows))))
-            out = model(batch.gyro, batch.acc, gravity_imu=batch.gravity_imu)
-            gyro, acc, dt = out.gyro.double(), out.acc.double(), batch.dt.double()
-            gyro_cov, acc_cov = out.gyro_cov.double(), out.acc_cov.double()
-            from_gyro = preintegrate(gyro, acc, dt, gyro_cov, torch.zeros_like(acc_cov), at=batch.at)
-            from_acc = preintegrate(gyro, acc, dt, torch.zeros_like(gyro_cov), acc_cov, at=batch.at)
-            start, end = (type(s)(*(x.double() for x in (s.rot, s.vel, s.pos))) for s in (batch.start, batch.targets))
-            errors.append(delta_errors(from_gyro, start, end, batch.gravity.double()))
-            gyro_var.append(torch.diagonal(from_gyro.cov, dim1=-2, dim2=-1))
-            acc_var.append(torch.diagonal(from_acc.cov, dim1=-2, dim2=-1))
-    squared, gyro_var, acc_var = torch.cat(errors).square(), torch.cat(gyro_var), torch.cat(acc_var)
-    log_scales = torch.zeros(2, dtype=torch.float64, requires_grad=True)
-    optimiser = torch.optim.LBFGS([log_scales], max_iter=100, line_search_fn="strong_wolfe")
+    for first in range(0, len(windows), batch_size):
+        batch = windows.select(torch.arange(first, min(first + batch_size, len(windows))))
+        out = model(batch.gyro, batch.acc, gravity_imu=batch.gravity_imu)
+        gyro, acc, dt = out.gyro.double(), out.acc.double(), batch.dt.double()
+        gyro_cov, acc_cov = out.gyro_cov.double(), out.acc_cov.double()
+        from_gyro = preintegrate(gyro, acc, dt, gyro_cov, torch.zeros_like(acc_cov), at=batch.at)
+        from_acc = preintegrate(gyro, acc, dt, torch.zeros_like(gyro_cov), acc_cov, at=batch.at)
+        start, end = (type(s)(*(x.double() for x in (s.rot, s.vel, s.pos))) for s in (batch.start, batch.targets))
+        errors.append(delta_errors(from_gyro, start, end, batch.gravity.double()))
+        gyro_var.append(torch.diagonal(from_gyro.cov, dim1=-2, dim2=-1))
+        acc_var.append(torch.diagonal(from_acc.cov, dim1=-2, dim2=-1))
+    return NoiseResiduals(torch.cat(errors), torch.cat(gyro_var), torch.cat(acc_var))
 
-    def nll():
-        optimiser.zero_grad()
-        variance = torch.exp(log_scales[0]) * gyro_var + torch.exp(log_scales[1]) * acc_var + VARIANCE_FLOOR
-        loss = (torch.log(variance) + squared / variance).mean()
-        loss.backward()
-        return loss
 
-    optimiser.step(nll)
-    gyro_scale, acc_scale = torch.exp(log_scales.detach()).tolist()
-    return gyro_scale, acc_scale
+def fit_noise_scales(model: AirImuNet, windows: Windows) -> tuple[float, float]:
+    """Scales (gyro, acc) of the model's noise densities that maximise the likelihood of ``windows``' errors
+    (``noise_residuals(...).best_scales()``). Meant for windows the corrections were not fitted to (the validation
+    set): residuals there are larger than on the training windows, where the noise decoders learned them, and one
+    global scale per sensor is what a few held-out windows can pin down without overfitting (variance scaling, as
+    temperature scaling for classifiers)."""
+    return noise_residuals(model, windows).best_scales()
 
 
 def scale_noise(model: AirImuNet, gyro_scale: float, acc_scale: float) -> None:

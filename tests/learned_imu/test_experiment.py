@@ -172,7 +172,6 @@ def test_noise_scaled_on_the_validation_windows_when_asked(tmp_path):
     assert float(model.log_init_acc_density) == pytest.approx(np.log(init["init_acc_density"] * scales[1]), abs=1e-5)
 
 
-
 def test_noise_scaling_asked_for_after_a_run_finished_is_applied_once(tmp_path):
     config = dataclasses.replace(TINY, train=dataclasses.replace(TINY.train, epochs=1, calibration_steps=2))
     train_run(config, tmp_path / "run", progress=False)

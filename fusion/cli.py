@@ -94,12 +94,23 @@ def view(recording: str = typer.Argument(..., help="an .rrd written by demo/abla
     raise typer.Exit(subprocess.call([sys.executable, "-m", "rerun", recording]))
 
 
+# (column, field): window-end statistics first (the paper's columns; learned_imu.metrics), then every-state RMSEs
 METRIC_COLUMNS = (
     ("ROE (deg)", "roe_deg"),
+    ("ROE RMSE (deg)", "roe_rmse_deg"),
     ("RPE (m)", "rpe_m"),
-    ("R-RMSE (deg)", "r_rmse_deg"),
-    ("P-RMSE (m)", "p_rmse_m"),
+    ("RPE RMSE (m)", "rpe_rmse_m"),
 )
+FIELD_LABELS = {
+    "roe_deg": "ROE (deg)",
+    "roe_rmse_deg": "RMSE (deg)",
+    "rpe_rmse_m": "P-RMSE (m)",
+    "roe_rmse_10f_deg": "R-RMSE (deg)",
+    "rpe_rmse_10f_m": "P-RMSE (m)",
+    "nse_rot": "NSE rot",
+    "nse_pos": "NSE pos",
+    "nse_vel": "NSE vel",
+}
 
 
 def _read_one(dataset: str, path: str, imu_file: str | None):
@@ -148,7 +159,13 @@ def evaluate(
         gyro, acc, label = out.gyro.numpy(), out.acc.numpy(), f"corrected by {checkpoint}"
     result = run_evaluation(sequence, interval, interval_unit, gyro, acc)
     table = Table(title=f"{result.sequence}: {label}, interval {result.interval_s:.3f} s ({result.n_windows} windows)")
-    extra = (("V-RMSE (m/s)", "v_rmse_m_s"), ("ATE (m)", "ate_m"), ("ATE aligned (m)", "ate_aligned_m"))
+    extra = (
+        ("rot RMSE all states (deg)", "rot_rmse_states_deg"),
+        ("pos RMSE all states (m)", "pos_rmse_states_m"),
+        ("vel RMSE all states (m/s)", "vel_rmse_states_m_s"),
+        ("ATE (m)", "ate_m"),
+        ("ATE aligned (m)", "ate_aligned_m"),
+    )
     names = (*METRIC_COLUMNS, *extra)
     for column, _ in names:
         table.add_column(column)
@@ -195,11 +212,12 @@ def ablate_imu(
     seeds: str = typer.Option(None, help="train the learned variants once per seed, e.g. '0,1,2' (mean +- std)"),
     progress: bool = typer.Option(True, help="show progress bars"),
 ) -> None:
-    """The paper's IMU ablation: Baseline, Average Bias, AirIMU w/o and with covariance loss, in one table."""
+    """The paper's IMU ablation: Baseline, Average Bias, linear calibration, AirIMU w/o and with covariance loss;
+    prints the rows and the paper's tables with its published values beside ours (learned_imu.ablation)."""
     from rich.console import Console
     from rich.table import Table
 
-    from learned_imu.ablation import ablate, summarise, write_rows
+    from learned_imu.ablation import ablate, paper_tables, write_rows
     from learned_imu.experiment import with_epochs
 
     cfg = _load_config(config, data_root)
@@ -208,6 +226,7 @@ def ablate_imu(
     except ValueError:
         raise typer.BadParameter(f"--seeds must be integers separated by commas, got {seeds!r}") from None
     rows = ablate(with_epochs(cfg, epochs) if epochs else cfg, out, progress=progress, seeds=seed_list)
+    console = Console()
     table = Table(title=f"{cfg.name}: IMU ablation, interval {cfg.evaluation.interval} {cfg.evaluation.interval_unit}")
     for column in ("Sequence", "Setting", "Seed", *(c for c, _ in METRIC_COLUMNS), "NSE rot/pos/vel"):
         table.add_column(column)
@@ -215,19 +234,42 @@ def ablate_imu(
         nse = "-" if row.nse_rot != row.nse_rot else f"{row.nse_rot:.2f}/{row.nse_pos:.2f}/{row.nse_vel:.2f}"
         seed = "-" if row.seed is None else str(row.seed)
         table.add_row(row.sequence, row.variant, seed, *(f"{getattr(row, k):.4g}" for _, k in METRIC_COLUMNS), nse)
-    Console().print(table)
+    console.print(table)
     if seed_list and len(seed_list) > 1:
-        summary = Table(title=f"mean +- std over seeds {seeds}")
-        for column in ("Sequence", "Setting", "Seeds", "ROE (deg)", "P-RMSE (m)"):
-            summary.add_column(column)
-        for s in summarise(rows):
-            summary.add_row(s.sequence, s.variant, str(s.seeds), f"{s.roe_deg_mean:.4g} +- {s.roe_deg_std:.2g}",
-                            f"{s.p_rmse_m_mean:.4g} +- {s.p_rmse_m_std:.2g}")  # fmt: skip
-        Console().print(summary)
+        console.print(f"mean +- std over seeds {seeds} in the tables below")
+    for paper_table in paper_tables(rows):
+        console.print(_paper_table(paper_table))
     write_rows(rows, json_out, csv_out)
     for path in (json_out, csv_out):
         if path:
-            Console().print(f"table written to {path}")
+            console.print(f"table written to {path}")
+
+
+def _paper_table(paper_table):
+    """A rich table: one row per setting, per sequence and field our mean +- std and the paper's value."""
+    from rich.table import Table
+
+    sequences = list(dict.fromkeys(c.sequence for c in paper_table.cells))
+    cells = {(c.setting, c.sequence, c.field): c for c in paper_table.cells}
+    table = Table(title=paper_table.title)
+    table.add_column("Setting")
+    columns = [(seq, f) for seq in sequences for f in paper_table.fields]
+    for seq, field in columns:
+        table.add_column(f"{seq}\n{FIELD_LABELS.get(field, field)}")
+        table.add_column("paper", style="dim")
+    for setting in dict.fromkeys(c.setting for c in paper_table.cells):
+        values = []
+        for column in columns:
+            cell = cells.get((setting, *column))
+            values += ["-", "-"] if cell is None else [_ours(cell), "-" if cell.paper is None else f"{cell.paper:.4g}"]
+        table.add_row(setting, *values)
+    return table
+
+
+def _ours(cell) -> str:
+    if cell.mean is None or cell.mean != cell.mean:
+        return "-"
+    return f"{cell.mean:.4g}" if cell.seeds <= 1 else f"{cell.mean:.4g} +- {cell.std:.2g}"
 
 
 @app.command()

@@ -30,12 +30,22 @@ class SequenceConfig:
 
     For a reader, ``path`` is relative to ``data.root`` and ``options`` are the reader's keyword arguments
     (e.g. ``imu_file`` for EuRoC). For ``"simulator"``, ``options`` are ``learned_imu.simulator.simulate``'s
-    (``profile``, ``duration_s``, ``grade``, ``seed``, ...) and ``path`` is unused.
+    (``profile``, ``duration_s``, ``grade``, ``seed``, ...) and ``path`` is unused. ``span`` keeps the samples
+    from one fraction of the sequence to another (``[0.0, 0.85]`` trains on the first 85 %, ``[0.85, 1.0]``
+    validates on the rest: ``ImuSequence.part``).
     """
 
     dataset: str
     path: str = ""
     options: dict[str, Any] = field(default_factory=dict)
+    span: tuple[float, ...] = (0.0, 1.0)
+
+    def __post_init__(self):
+        if len(self.span) != 2 or not 0.0 <= self.span[0] < self.span[1] <= 1.0:
+            raise ConfigError(
+                f"span of {self.path or self.dataset}: need [start, stop] with 0 <= start < stop <= 1, "
+                f"got {list(self.span)}"
+            )
 
 
 @dataclass(frozen=True)
@@ -101,10 +111,12 @@ class TrainConfig:
 
 @dataclass(frozen=True)
 class EvaluationConfig:
-    """Interval of the paper's metrics (``learned_imu.evaluate``) and keyframe spacing of exports, s."""
+    """Interval of the paper's metrics (``learned_imu.evaluate``) and keyframe spacing of exports, s; ``frames``:
+    the short interval of the paper's 10-frame table, in IMU samples (0 = not scored)."""
 
     interval: float = 1.0
     interval_unit: str = "s"
+    frames: int = 10
 
 
 @dataclass(frozen=True)
@@ -157,7 +169,10 @@ def from_dict(cls, data, source: str = "config", where: str = ""):
             values[name] = _convert(hints[name], data[name], source, key)
         elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
             raise ConfigError(f"{source}: missing key '{key}'")
-    return cls(**values)
+    try:
+        return cls(**values)
+    except ConfigError as error:  # a record's own range check (__post_init__)
+        raise ConfigError(f"{source}: key '{where or 'top level'}': {error}") from None
 
 
 def to_dict(config) -> dict:

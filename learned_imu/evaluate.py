@@ -1,7 +1,7 @@
 """Evaluate IMU integration on a sequence with ground truth: the paper's metrics over an interval.
 
-See ``learned_imu.metrics`` for the definitions. The raw IMU is evaluated unless corrected samples are given
-(a trained model's output, later with its covariance).
+See ``learned_imu.metrics`` for the definitions and for which of the paper's table columns each field is. The raw
+IMU is evaluated unless corrected samples are given (a trained model's output).
 """
 
 from __future__ import annotations
@@ -27,16 +27,17 @@ class Evaluation:
     interval_frames: int
     n_windows: int
     roe_deg: float
+    roe_rmse_deg: float
     rpe_m: float
-    r_rmse_deg: float
-    p_rmse_m: float
-    v_rmse_m_s: float
+    rpe_rmse_m: float
+    rot_rmse_states_deg: float
+    pos_rmse_states_m: float
+    vel_rmse_states_m_s: float
     ate_m: float
     ate_aligned_m: float
 
     def to_json_dict(self) -> dict:
-        """Plain dict for JSON: ``roe_deg``, ``rpe_m``, ``r_rmse_deg``, ``p_rmse_m``, ``ate_m``, ``interval_s``,
-        ``n_windows`` and the other fields."""
+        """Plain dict for JSON: every field, named as above."""
         return asdict(self)
 
 
@@ -90,10 +91,12 @@ def evaluate(
         interval_frames=length,
         n_windows=len(starts),
         roe_deg=float(err.end_rot_deg.mean()),
+        roe_rmse_deg=metrics.rmse(err.end_rot_deg),
         rpe_m=float(err.end_pos_m.mean()),
-        r_rmse_deg=metrics.rmse(err.rot_deg),
-        p_rmse_m=metrics.rmse(err.pos_m),
-        v_rmse_m_s=metrics.rmse(err.vel_m_s),
+        rpe_rmse_m=metrics.rmse(err.end_pos_m),
+        rot_rmse_states_deg=metrics.rmse(err.rot_deg),
+        pos_rmse_states_m=metrics.rmse(err.pos_m),
+        vel_rmse_states_m_s=metrics.rmse(err.vel_m_s),
         ate_m=metrics.ate_m(est[valid], truth[valid], align=False),
         ate_aligned_m=metrics.ate_m(est[valid], truth[valid], align=True),
     )

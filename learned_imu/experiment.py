@@ -6,7 +6,7 @@ A run folder holds:
 - ``metrics.jsonl``: one JSON line per epoch: ``epoch``, ``train_loss``, ``val_loss`` (the state loss alone, the
   selection criterion: ``Trainer.validation_loss``), ``lr``, ``seconds``
   (wall time since the run began, summed over resumptions) and the validation metrics ``val_roe_deg``,
-  ``val_p_rmse_m`` (means over the validation sequences at the configured interval);
+  ``val_rpe_rmse_m`` (means over the validation sequences at the configured interval; ``learned_imu.metrics``);
 - ``last.pt`` after every epoch and ``best.pt`` at the best validation loss (``learned_imu.checkpoint``); when
   training ends, the noise decoders of ``best.pt`` are calibrated (``train.calibrate_uncertainty``,
   ``train.calibration_steps``), with ``train.scale_noise_on_val`` its noise is then scaled to the validation
@@ -51,6 +51,8 @@ RESUMABLE_CHANGES = (
     "train.early_stop_patience",
     "train.calibration_steps",
     "train.scale_noise_on_val",
+    "data.evaluate",  # what is scored after training, not what trains
+    "evaluation.frames",
 )
 RUN_FILES = ("config.yaml", "metrics.jsonl", "best.pt", "last.pt")
 
@@ -72,12 +74,12 @@ def load_sequence(spec: SequenceConfig, root: str | Path) -> list[ImuSequence]:
     if spec.dataset == SIMULATOR:
         from learned_imu.simulator import simulate
 
-        return [simulate(**spec.options)]
+        return [simulate(**spec.options).part(*spec.span)]
     from learned_imu.datasets import read_sequence
 
     path = Path(spec.path)
     out = read_sequence(spec.dataset, path if path.is_absolute() else Path(root) / path, **spec.options)
-    return out if isinstance(out, list) else [out]
+    return [s.part(*spec.span) for s in (out if isinstance(out, list) else [out])]
 
 
 def load_sequences(specs: tuple[SequenceConfig, ...], root: str | Path) -> list[ImuSequence]:
@@ -159,7 +161,7 @@ def train_run(
         if writer:  # the other ranks go on to the next epoch and wait for rank 0 in its first step
             metrics = [evaluate_model(model, s, config) for s in val_seqs]
             entry["val_roe_deg"] = float(np.mean([m.roe_deg for m in metrics]))
-            entry["val_p_rmse_m"] = float(np.mean([m.p_rmse_m for m in metrics]))
+            entry["val_rpe_rmse_m"] = float(np.mean([m.rpe_rmse_m for m in metrics]))
         entry["seconds"] = time.perf_counter() - clock
         history.append(entry)
         improved = not best or entry["val_loss"] < best["val_loss"]  # val_loss: rank 0's, on every rank

@@ -112,6 +112,31 @@ class ImuSequence:
     def __len__(self) -> int:
         return int(self.t.shape[0])
 
+    def part(self, start: float, stop: float) -> ImuSequence:
+        """The samples from fraction ``start`` to fraction ``stop`` of the sequence (0 <= start < stop <= 1, by
+        sample count), with their ground truth and the GPS fixes inside that time span; named ``NAME[start:stop]``
+        (e.g. a held-back tail for validation: ``part(0.85, 1.0)``)."""
+        if not 0.0 <= start < stop <= 1.0:
+            raise ValueError(f"{self.name}: a part needs 0 <= start < stop <= 1, got {start}, {stop}")
+        if (start, stop) == (0.0, 1.0):
+            return self
+        n = len(self)
+        first, last = int(round(start * n)), int(round(stop * n))
+        if last - first < 2:
+            raise ValueError(f"{self.name}: part [{start}, {stop}] holds fewer than 2 of its {n} samples")
+        cut = slice(first, last)
+        gt = None
+        if self.gt is not None:
+            gt = GroundTruth(self.gt.rot[cut], self.gt.pos[cut], self.gt.vel[cut], self.gt.valid[cut])
+        gps = None
+        if self.gps is not None:
+            inside = (self.gps.t >= self.t[first]) & (self.gps.t <= self.t[last - 1])
+            gps = GpsFixes(self.gps.t[inside], self.gps.pos[inside], self.gps.sigma[inside])
+        return ImuSequence(
+            f"{self.name}[{start:g}:{stop:g}]", self.t[cut], self.gyro[cut], self.acc[cut], self.gravity, gt, gps,
+            self.source,
+        )  # fmt: skip
+
     @property
     def dt(self) -> np.ndarray:
         """(N,) time step of each sample, s: ``t[k+1] - t[k]``, the last one repeating its predecessor."""

@@ -66,7 +66,7 @@ def test_evaluate_writes_the_issue_keys(shared_data, tmp_path):
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
     data = json.loads(out.read_text())
-    assert {"roe_deg", "rpe_m", "r_rmse_deg", "p_rmse_m", "ate_m", "interval_s", "n_windows"} <= set(data)
+    assert {"roe_deg", "roe_rmse_deg", "rpe_m", "rpe_rmse_m", "ate_m", "interval_s", "n_windows"} <= set(data)
     assert data["interval_s"] == pytest.approx(0.05, abs=1e-4) and data["n_windows"] == 779
 
 

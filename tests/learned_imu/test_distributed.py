@@ -69,7 +69,7 @@ def test_two_processes_give_the_one_process_loss_curve_and_write_one_run_folder(
     assert two[0] == one[0] | {"seconds": two[0]["seconds"]}  # the one-process epoch, kept as logged
     assert [e["epoch"] for e in two] == list(range(EPOCHS))
     assert [e["lr"] for e in two] == [e["lr"] for e in one]
-    for key in ("train_loss", "val_loss", "val_roe_deg", "val_p_rmse_m"):
+    for key in ("train_loss", "val_loss", "val_roe_deg", "val_rpe_rmse_m"):
         assert [e[key] for e in two] == pytest.approx([e[key] for e in one], rel=LOSS_RTOL), key
     assert one[-1]["train_loss"] < 0.9 * one[0]["train_loss"]  # it trained: a real curve to compare
 

@@ -18,7 +18,9 @@ def sim():
 def test_perfect_imu_scores_zero(sim):
     result = evaluate(sim.sequence, 1.0, gyro=sim.clean_gyro, acc=sim.clean_acc)
     assert result.n_windows == 19  # 4000 samples, windows of 200 ending at state <= 3999
-    assert result.roe_deg < 1e-9 and result.rpe_m < 1e-9 and result.p_rmse_m < 1e-9
+    assert (
+        result.roe_deg < 1e-9 and result.rpe_m < 1e-9 and result.rpe_rmse_m < 1e-9 and result.pos_rmse_states_m < 1e-9
+    )
     assert result.ate_m < 1e-7 and result.ate_aligned_m < 1e-7
 
 
@@ -37,9 +39,10 @@ def test_frames_and_seconds_agree(sim):
     assert by_seconds.to_json_dict() == by_frames.to_json_dict()
     assert set(by_frames.to_json_dict()) >= {
         "roe_deg",
+        "roe_rmse_deg",
         "rpe_m",
-        "r_rmse_deg",
-        "p_rmse_m",
+        "rpe_rmse_m",
+        "rot_rmse_states_deg",
         "ate_m",
         "interval_s",
         "n_windows",

@@ -51,7 +51,7 @@ def test_run_folder_holds_config_metrics_and_checkpoints(tmp_path):
     assert resolved == TINY
     log = lines(run / "metrics.jsonl")
     assert [e["epoch"] for e in log] == [0, 1, 2, 3]
-    assert {"train_loss", "val_loss", "lr", "val_roe_deg", "val_p_rmse_m", "seconds"} <= set(log[0])
+    assert {"train_loss", "val_loss", "lr", "val_roe_deg", "val_rpe_rmse_m", "seconds"} <= set(log[0])
     best = min(log, key=lambda e: e["val_loss"])
     assert summary.best_epoch == best["epoch"]
     assert load_checkpoint(run / "best.pt")["best"]["val_loss"] == best["val_loss"]
@@ -109,18 +109,21 @@ def test_average_bias_recovers_a_constant_simulated_bias():
     np.testing.assert_allclose(bias.acc_m_s2, truth.acc_bias.mean(axis=0), atol=1e-3)
 
 
-def test_ablation_scores_the_four_settings(tmp_path):
+def test_ablation_scores_every_setting(tmp_path):
     rows = ablate(TINY, tmp_path / "ablation", progress=False)
     assert [r.variant for r in rows] == [v.name for v in VARIANTS]
     by = {r.variant: r for r in rows}
     assert by["Average Bias"].roe_deg < by["Baseline"].roe_deg  # the device's bias dominates the raw error
+    assert by["Linear calibration"].roe_deg < by["Baseline"].roe_deg
+    assert 0 < by["Baseline"].roe_rmse_10f_deg < by["Baseline"].roe_rmse_deg  # 10 samples drift less than 1 s
     assert np.isnan(by["Baseline"].nse_rot) and np.isfinite(by["AirIMU"].nse_rot)
     no_cov = load_checkpoint(tmp_path / "ablation" / "airimu_no_cov" / "last.pt")["config"]
     assert no_cov["loss"]["covariance"] == 0.0
     write_rows(rows, tmp_path / "t.json", tmp_path / "t.csv")
-    table = json.loads((tmp_path / "t.json").read_text())
+    table = json.loads((tmp_path / "t.json").read_text())["rows"]
     assert table[0]["variant"] == "Baseline" and table[0]["nse_rot"] is None
     assert (tmp_path / "t.csv").read_text().splitlines()[0].startswith("variant,sequence,roe_deg")
+    assert (tmp_path / "t_tables.csv").read_text().splitlines()[0].startswith("table,setting,sequence,field")
     assert by["Baseline"].seed is None and by["AirIMU"].seed == TINY.train.seed
 
 
@@ -136,8 +139,8 @@ def test_ablation_over_seeds_trains_each_learned_variant_per_seed(tmp_path):
     assert rows[1].roe_deg != rows[2].roe_deg  # different seeds, different models
     summary = {s.variant: s for s in summarise(rows)}
     assert summary["AirIMU"].seeds == 2 and summary["Baseline"].seeds == 1
-    assert np.isclose(summary["AirIMU"].roe_deg_mean, (rows[1].roe_deg + rows[2].roe_deg) / 2)
-    assert np.isclose(summary["AirIMU"].roe_deg_std, abs(rows[1].roe_deg - rows[2].roe_deg) / 2)
+    assert np.isclose(summary["AirIMU"].mean["roe_deg"], (rows[1].roe_deg + rows[2].roe_deg) / 2)
+    assert np.isclose(summary["AirIMU"].std["roe_deg"], abs(rows[1].roe_deg - rows[2].roe_deg) / 2)
 
 
 def test_ablate_imu_cli_with_seeds_prints_the_summary_and_writes_seeded_rows(tmp_path):
@@ -152,7 +155,7 @@ def test_ablate_imu_cli_with_seeds_prints_the_summary_and_writes_seeded_rows(tmp
     result = CliRunner().invoke(app, [*args, "--json", str(tmp_path / "t.json"), "--no-progress"])
     assert result.exit_code == 0, result.output
     assert "mean +- std over seeds 0,1" in result.output
-    rows = json.loads((tmp_path / "t.json").read_text())
+    rows = json.loads((tmp_path / "t.json").read_text())["rows"]
     assert sorted(r["seed"] for r in rows if r["variant"] == "AirIMU") == [0, 1]
     bad = CliRunner().invoke(app, ["ablate-imu", "--config", str(config), "--seeds", "0,x"])
     assert bad.exit_code != 0 and "--seeds" in bad.output
@@ -184,3 +187,59 @@ def test_noise_scaling_asked_for_after_a_run_finished_is_applied_once(tmp_path):
     assert len(first["best"]["noise_scales"]) == 2 and first["best"] == again["best"]
     model_state = first["trainer"]["model"]
     assert torch.equal(model_state["log_init_gyro_density"], again["trainer"]["model"]["log_init_gyro_density"])
+
+
+def test_linear_calibration_recovers_scale_misalignment_and_bias():
+    from learned_imu.baselines import linear_calibration
+
+    truth = simulate_with_truth("drone", duration_s=60.0, rate_hz=200.0, seed=3)
+    rng = np.random.default_rng(0)
+    gyro_m, acc_m = np.eye(3) + 0.02 * rng.standard_normal((3, 3)), np.eye(3) + 0.02 * rng.standard_normal((3, 3))
+    gyro_b, acc_b = np.array([0.01, -0.02, 0.005]), np.array([0.1, -0.05, 0.2])
+    seq = truth.sequence
+    raw = dataclasses.replace(
+        seq, gyro=truth.clean_gyro @ gyro_m.T + gyro_b, acc=truth.clean_acc @ acc_m.T + acc_b
+    )  # raw = M true + b, so the calibration is M^-1 and offset M^-1 b
+    fitted = linear_calibration([raw])
+    np.testing.assert_allclose(fitted.gyro_matrix, np.linalg.inv(gyro_m), atol=2e-3)
+    np.testing.assert_allclose(fitted.acc_matrix, np.linalg.inv(acc_m), atol=2e-3)
+    np.testing.assert_allclose(fitted.gyro_offset_rad_s, np.linalg.solve(gyro_m, gyro_b), atol=2e-4)
+    np.testing.assert_allclose(fitted.acc_offset_m_s2, np.linalg.solve(acc_m, acc_b), atol=2e-2)
+    gyro, acc = fitted.correct(raw)
+    assert np.abs(gyro - truth.clean_gyro).max() < 5e-3 and np.abs(acc - truth.clean_acc).max() < 0.05
+
+
+def test_a_sequence_part_keeps_its_samples_and_a_bad_span_names_the_file(tmp_path):
+    truth = simulate_with_truth("drone", duration_s=10.0, rate_hz=200.0, seed=1)
+    seq = truth.sequence
+    tail = seq.part(0.75, 1.0)
+    assert len(tail) == 500 and tail.name.endswith("[0.75:1]")
+    np.testing.assert_array_equal(tail.gyro, seq.gyro[1500:])
+    np.testing.assert_array_equal(tail.gt.pos, seq.gt.pos[1500:])
+    assert seq.part(0.0, 1.0) is seq
+    with pytest.raises(ValueError, match="0 <= start < stop <= 1"):
+        seq.part(0.5, 0.5)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: x\ndata:\n  train: [{dataset: simulator, span: [0.9, 0.2]}]\n  val: []\n")
+    from learned_imu.config import load_config
+
+    with pytest.raises(ConfigError, match=r"bad\.yaml.*data\.train\[0\].*span"):
+        load_config(bad)
+
+
+def test_paper_tables_put_the_papers_values_beside_our_seed_means():
+    from learned_imu.ablation import AblationRow, paper_tables
+
+    def row(variant, roe, seed=None):
+        return AblationRow(variant, "MH_04_difficult", roe, roe, roe, 0.04, 0.02, 0.003, 1.0, seed=seed)
+
+    rows = [row("Baseline", 4.55), row("AirIMU", 0.06, 0), row("AirIMU", 0.08, 1)]
+    gyro_table = paper_tables(rows)[0]
+    cells = {(c.setting, c.field): c for c in gyro_table.cells}
+    assert cells[("AirIMU", "roe_deg")].mean == pytest.approx(0.07) and cells[("AirIMU", "roe_deg")].seeds == 2
+    assert cells[("AirIMU", "roe_deg")].std == pytest.approx(0.01)
+    assert cells[("AirIMU", "roe_deg")].paper == 0.0708 and cells[("Baseline", "roe_rmse_deg")].paper == 4.5406
+    brossard = cells[("Brossard et al.", "roe_deg")]  # quoted from the paper, not run here
+    assert brossard.mean is None and brossard.paper == 0.1067
+    nse = paper_tables(rows)[3]
+    assert all(c.setting != "Baseline" for c in nse.cells)  # no covariance, no paper value: no cell

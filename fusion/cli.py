@@ -129,6 +129,22 @@ def _load_config(config: str, data_root: str | None):
     return load_config(config, data_root=data_root)
 
 
+def _overrides(config, epochs: int | None, device: str | None):
+    """``--epochs`` and ``--device`` applied to a loaded experiment config (checked like the YAML keys)."""
+    from learned_imu.config import DEVICES
+    from learned_imu.experiment import with_device, with_epochs
+
+    if epochs is not None:
+        if epochs < 1:
+            raise typer.BadParameter(f"--epochs must be at least 1, got {epochs}")
+        config = with_epochs(config, epochs)
+    if device is not None:
+        if device not in DEVICES:
+            raise typer.BadParameter(f"--device must be one of {', '.join(DEVICES)}, got {device!r}")
+        config = with_device(config, device)
+    return config
+
+
 @app.command()
 def evaluate(
     dataset: str = typer.Option(..., help="reader name: euroc, kitti, broad, rosbag, csv"),
@@ -181,6 +197,7 @@ def train(
     out: str = typer.Option(..., help="run folder; an existing run there is resumed"),
     data_root: str = typer.Option(None, help="folder the config's sequence paths are relative to"),
     epochs: int = typer.Option(None, help="override train.epochs"),
+    device: str = typer.Option(None, help="override train.device: cpu, cuda or auto"),
     progress: bool = typer.Option(True, help="show progress bars"),
 ) -> None:
     """Train AirIMU (corrections + uncertainty) into a run folder: config.yaml, metrics.jsonl, best.pt, last.pt.
@@ -188,11 +205,11 @@ def train(
     from rich.console import Console
 
     from learned_imu.distributed import process_group
-    from learned_imu.experiment import train_run, with_epochs
+    from learned_imu.experiment import train_run
 
-    cfg = _load_config(config, data_root)
+    cfg = _overrides(_load_config(config, data_root), epochs, device)
     with process_group() as world:
-        summary = train_run(with_epochs(cfg, epochs) if epochs else cfg, out, progress=progress, world=world)
+        summary = train_run(cfg, out, progress=progress, world=world)
     if world is not None and not world.writer:
         return
     Console().print(
@@ -210,6 +227,7 @@ def ablate_imu(
     json_out: str = typer.Option(None, "--json", help="write the table to this JSON file"),
     csv_out: str = typer.Option(None, "--csv", help="write the table to this CSV file"),
     seeds: str = typer.Option(None, help="train the learned variants once per seed, e.g. '0,1,2' (mean +- std)"),
+    device: str = typer.Option(None, help="override train.device: cpu, cuda or auto"),
     progress: bool = typer.Option(True, help="show progress bars"),
 ) -> None:
     """The paper's IMU ablation: Baseline, Average Bias, linear calibration, AirIMU w/o and with covariance loss;
@@ -218,14 +236,13 @@ def ablate_imu(
     from rich.table import Table
 
     from learned_imu.ablation import ablate, paper_tables, write_rows
-    from learned_imu.experiment import with_epochs
 
-    cfg = _load_config(config, data_root)
+    cfg = _overrides(_load_config(config, data_root), epochs, device)
     try:
         seed_list = None if seeds is None else [int(s) for s in seeds.split(",") if s.strip()]
     except ValueError:
         raise typer.BadParameter(f"--seeds must be integers separated by commas, got {seeds!r}") from None
-    rows = ablate(with_epochs(cfg, epochs) if epochs else cfg, out, progress=progress, seeds=seed_list)
+    rows = ablate(cfg, out, progress=progress, seeds=seed_list)
     console = Console()
     table = Table(title=f"{cfg.name}: IMU ablation, interval {cfg.evaluation.interval} {cfg.evaluation.interval_unit}")
     for column in ("Sequence", "Setting", "Seed", *(c for c, _ in METRIC_COLUMNS), "NSE rot/pos/vel"):

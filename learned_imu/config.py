@@ -23,6 +23,8 @@ import yaml
 
 from learned_imu.errors import ConfigError
 
+DEVICES = ("cpu", "cuda", "auto")
+
 
 @dataclass(frozen=True)
 class SequenceConfig:
@@ -107,6 +109,13 @@ class TrainConfig:
     scale_noise_on_val: bool = False
     remove_gravity: bool = False  # network input acc + R_gt^T g (official option; needs ground truth)
     seed: int = 0
+    # where model, windows and preintegration live while training: cpu, cuda (an error without one) or auto
+    # (cuda when torch sees one); checkpoints are read back on the CPU either way
+    device: str = "cpu"
+
+    def __post_init__(self):
+        if self.device not in DEVICES:
+            raise ConfigError(f"train.device must be one of {', '.join(DEVICES)}, got {self.device!r}")
 
 
 @dataclass(frozen=True)
@@ -129,6 +138,20 @@ class ExperimentConfig:
     loss: LossConfig = LossConfig()
     train: TrainConfig = TrainConfig()
     evaluation: EvaluationConfig = EvaluationConfig()
+
+
+def resolve_device(device: str) -> str:
+    """``train.device`` as a torch device name: ``auto`` is ``cuda`` when torch sees a GPU, else ``cpu``; ``cuda``
+    without one is a ``ConfigError``."""
+    import torch
+
+    if device not in DEVICES:
+        raise ConfigError(f"train.device must be one of {', '.join(DEVICES)}, got {device!r}")
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if device == "cuda" and not torch.cuda.is_available():
+        raise ConfigError("train.device is 'cuda' but torch sees no CUDA device (use 'cpu' or 'auto')")
+    return device
 
 
 def load_config(path: str | Path, data_root: str | Path | None = None) -> ExperimentConfig:

@@ -31,7 +31,7 @@ import numpy as np
 import torch
 
 from learned_imu.checkpoint import build_model, load_checkpoint, save_checkpoint
-from learned_imu.config import ExperimentConfig, SequenceConfig, save_config, to_dict
+from learned_imu.config import ExperimentConfig, SequenceConfig, resolve_device, save_config, to_dict
 from learned_imu.distributed import World, agree, barrier, check_batch_size, is_writer
 from learned_imu.errors import ConfigError
 from learned_imu.evaluate import Evaluation, evaluate
@@ -51,6 +51,7 @@ RESUMABLE_CHANGES = (
     "train.early_stop_patience",
     "train.calibration_steps",
     "train.scale_noise_on_val",
+    "train.device",  # a run started on a GPU may finish on the CPU and vice versa
     "data.evaluate",  # what is scored after training, not what trains
     "evaluation.frames",
 )
@@ -100,21 +101,23 @@ def loss_weights(config: ExperimentConfig) -> LossWeights:
 
 
 def correct(model: AirImuNet, sequence: ImuSequence, remove_gravity: bool = False) -> Correction:
-    """The model's output for a whole sequence, (N, 3) fields in float64 (streamed unless gravity removal needs
-    the ground truth in one pass)."""
+    """The model's output for a whole sequence, (N, 3) fields in float64 on the CPU (streamed unless gravity removal
+    needs the ground truth in one pass; computed on the model's device)."""
     model.eval()
-    gyro = torch.as_tensor(sequence.gyro, dtype=torch.float32)
-    acc = torch.as_tensor(sequence.acc, dtype=torch.float32)
+    device = next(model.parameters()).device
+    gyro = torch.as_tensor(sequence.gyro, dtype=torch.float32, device=device)
+    acc = torch.as_tensor(sequence.acc, dtype=torch.float32, device=device)
     if remove_gravity:
         if sequence.gt is None:
             raise ValueError(f"{sequence.name}: the model removes gravity with ground truth; the sequence has none")
-        g_imu = torch.as_tensor(np.einsum("nji,j->ni", sequence.gt.rot, sequence.gravity), dtype=torch.float32)
+        g_imu = np.einsum("nji,j->ni", sequence.gt.rot, sequence.gravity)
+        g_imu = torch.as_tensor(g_imu, dtype=torch.float32, device=device)
         with torch.no_grad():
             out = model(gyro[None], acc[None], gravity_imu=g_imu[None])
         out = Correction(*(getattr(out, f)[0] for f in out.__dataclass_fields__))
     else:
         out = correct_sequence(model, gyro, acc)
-    return Correction(*(getattr(out, f).double() for f in out.__dataclass_fields__))
+    return Correction(*(getattr(out, f).cpu().double() for f in out.__dataclass_fields__))
 
 
 def evaluate_model(model: AirImuNet, sequence: ImuSequence, config: ExperimentConfig) -> Evaluation:
@@ -148,7 +151,7 @@ def train_run(
         model, build_windows(train_seqs, config, t.stride or None), build_windows(val_seqs, config, None),
         batch_size=t.batch_size, lr=t.lr, weight_decay=t.weight_decay, weights=loss_weights(config),
         use_covariance=use_cov, plateau_factor=t.plateau_factor, plateau_patience=t.plateau_patience,
-        seed=t.seed, world=world,
+        seed=t.seed, world=world, device=resolve_device(t.device),
     )  # fmt: skip
     history, best = _resume(folder, cfg_dict, trainer)
     if not agree(trainer.epochs_done, world):
@@ -279,3 +282,8 @@ def _progress_bar(enabled: bool, trainer: Trainer, history: list[dict]):
 def with_epochs(config: ExperimentConfig, epochs: int) -> ExperimentConfig:
     """``config`` with another epoch budget (for quick runs)."""
     return replace(config, train=replace(config.train, epochs=epochs))
+
+
+def with_device(config: ExperimentConfig, device: str) -> ExperimentConfig:
+    """``config`` training on another device (``train.device``: cpu, cuda or auto)."""
+    return replace(config, train=replace(config.train, device=device))

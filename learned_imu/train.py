@@ -74,10 +74,14 @@ class Trainer:
         plateau_patience: int = 2,
         seed: int = 0,
         world: World | None = None,
+        device: str = "cpu",
     ):
         if batch_size < 1 or len(train) == 0 or len(val) == 0:
             raise ValueError(f"Trainer: need batch_size >= 1 and windows to train and validate, got {batch_size}")
-        self.model, self.train, self.val = model, train, val
+        # model (in place), windows and so every preintegration live on ``device``; the shuffling generator and
+        # the RNG state kept in checkpoints are the CPU's (on a GPU dropout draws from the CUDA generator, so a
+        # resumed GPU run is not bit-exact)
+        self.model, self.train, self.val = model.to(device), train.to(device), val.to(device)
         self.batch_size, self.use_covariance = batch_size, use_covariance
         self.weights = weights or LossWeights()
         self.world = world
@@ -168,6 +172,8 @@ def calibrate_uncertainty(
     """Second stage: fit only the noise decoders by the covariance NLL, the rest of the network frozen, in eval
     mode (as at inference). Returns the mean NLL of the last 20 steps.
 
+    ``windows`` are moved to the model's device.
+
     Why: in joint training the first epochs see errors of the raw, uncorrected IMU (hundreds of sigmas), and Adam's
     second-moment memory of those gradients then shrinks the noise decoders' steps by orders of magnitude, so their
     output lags behind the corrections' improvement and over-predicts the noise (measured on EuRoC: e^2/sigma^2 of
@@ -185,6 +191,7 @@ def calibrate_uncertainty(
         p.requires_grad_(True)
     optimiser = torch.optim.Adam(heads, lr=lr)
     generator = torch.Generator().manual_seed(seed)
+    windows = windows.to(heads[0].device)
     model.eval()
     losses = []
     try:
@@ -246,8 +253,10 @@ class NoiseResiduals:
 @torch.no_grad()
 def noise_residuals(model: AirImuNet, windows: Windows, batch_size: int = 64) -> NoiseResiduals:
     """The model (eval mode) on ``windows``: its errors and its two noise variances (see ``NoiseResiduals``),
-    from two float64 preintegrations per batch, one with each sensor's noise alone."""
+    from two float64 preintegrations per batch, one with each sensor's noise alone (on the model's device; the
+    result on the CPU)."""
     model.eval()
+    windows = windows.to(next(model.parameters()).device)
     errors, gyro_var, acc_var = [], [], []
     for first in range(0, len(windows), batch_size):
         batch = windows.select(torch.arange(first, min(first + batch_size, len(windows))))
@@ -260,7 +269,7 @@ def noise_residuals(model: AirImuNet, windows: Windows, batch_size: int = 64) ->
         errors.append(delta_errors(from_gyro, start, end, batch.gravity.double()))
         gyro_var.append(torch.diagonal(from_gyro.cov, dim1=-2, dim2=-1))
         acc_var.append(torch.diagonal(from_acc.cov, dim1=-2, dim2=-1))
-    return NoiseResiduals(torch.cat(errors), torch.cat(gyro_var), torch.cat(acc_var))
+    return NoiseResiduals(*(torch.cat(x).cpu() for x in (errors, gyro_var, acc_var)))
 
 
 def fit_noise_scales(model: AirImuNet, windows: Windows) -> tuple[float, float]:

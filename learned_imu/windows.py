@@ -35,8 +35,22 @@ class Windows:
     def __len__(self) -> int:
         return self.gyro.shape[0]
 
+    def to(self, device: str | torch.device) -> Windows:
+        """The same windows on ``device`` (every tensor moved; ``self`` when nothing moves)."""
+        if self.gyro.device == torch.device(device):
+            return self
+
+        def move(state: NavState) -> NavState:
+            return NavState(state.rot.to(device), state.vel.to(device), state.pos.to(device))
+
+        return Windows(
+            self.gyro.to(device), self.acc.to(device), self.dt.to(device), move(self.start), move(self.targets),
+            self.gravity.to(device), self.at, None if self.gravity_imu is None else self.gravity_imu.to(device),
+        )  # fmt: skip
+
     def select(self, index: torch.Tensor) -> Windows:
         """The windows at ``index`` (a 1-D index tensor)."""
+        index = index.to(self.gyro.device)
         pick = _pick(index)
         return Windows(
             self.gyro[index], self.acc[index], self.dt[index], pick(self.start), pick(self.targets), self.gravity,

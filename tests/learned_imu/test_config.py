@@ -71,3 +71,42 @@ def test_missing_key_and_bad_yaml(tmp_path):
         load_config(write(tmp_path, "name: [unclosed\n"))
     with pytest.raises(ConfigError, match="cannot read"):
         load_config(tmp_path / "absent.yaml")
+
+
+PAPER_TRAIN = {"MH_01_easy", "MH_03_medium", "MH_05_difficult", "V1_02_medium", "V2_01_easy", "V2_03_difficult"}
+PAPER_TEST = {"MH_02_easy", "MH_04_difficult", "V1_03_difficult", "V2_02_medium", "V1_01_easy"}
+
+
+def test_euroc_config_is_the_papers_split_and_validation_never_touches_a_test_flight(shared_data):
+    config = load_config(Path(__file__).parents[2] / "configs" / "euroc.yaml", data_root=shared_data)
+    name = lambda spec: Path(spec.path).name  # noqa: E731
+    assert {name(s) for s in config.data.train} == PAPER_TRAIN
+    assert {name(s) for s in config.data.val} <= PAPER_TRAIN
+    assert {name(s) for s in config.data.evaluate} == {"MH_04_difficult", "V1_03_difficult", "V2_02_medium"}
+    assert {name(s) for s in config.data.evaluate} <= PAPER_TEST
+    for flight in PAPER_TRAIN:  # each flight's training and validation parts do not overlap
+        train = [s.span for s in config.data.train if name(s) == flight]
+        val = [s.span for s in config.data.val if name(s) == flight]
+        assert all(t[1] <= v[0] or v[1] <= t[0] for t in train for v in val), flight
+    assert config.train.scale_noise_on_val and config.evaluation.frames == 10
+
+
+def test_data_root_override_moves_every_sequence_list(tmp_path, shared_data):
+    """A user's own copy of the official download: ``--data-root`` is where train, val and evaluate are read."""
+    from learned_imu.errors import DataError
+    from learned_imu.experiment import load_sequences
+
+    root = tmp_path / "official"
+    (root / "euroc").mkdir(parents=True)
+    (root / "euroc" / "V2_02_medium").symlink_to(shared_data / "euroc" / "V2_02_medium")
+    (root / "euroc" / "V1_01_easy").symlink_to(shared_data / "euroc" / "V1_01_easy")  # ground truth only here
+    text = (
+        "name: five\ndata:\n  root: /nowhere\n  train: [{dataset: euroc, path: euroc/V2_02_medium}]\n"
+        "  val: [{dataset: euroc, path: euroc/V2_02_medium}]\n"
+        "  evaluate: [{dataset: euroc, path: euroc/V2_02_medium}, {dataset: euroc, path: euroc/V1_01_easy}]\n"
+    )
+    config = load_config(write(tmp_path, text), data_root=root)
+    assert config.data.root == str(root.resolve())
+    assert [s.name for s in load_sequences(config.data.evaluate[:1], config.data.root)] == ["V2_02_medium"]
+    with pytest.raises(DataError, match=r"V1_01_easy.*imu_file"):  # what the shared data lacks, said plainly
+        load_sequences(config.data.evaluate[1:], config.data.root)

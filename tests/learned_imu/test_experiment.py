@@ -243,3 +243,62 @@ def test_paper_tables_put_the_papers_values_beside_our_seed_means():
     assert brossard.mean is None and brossard.paper == 0.1067
     nse = paper_tables(rows)[3]
     assert all(c.setting != "Baseline" for c in nse.cells)  # no covariance, no paper value: no cell
+
+
+def test_device_option_is_checked_and_a_run_on_auto_reads_back_on_the_cpu(tmp_path):
+    from learned_imu.config import resolve_device
+
+    with pytest.raises(ConfigError, match=r"tiny\.yaml.*train.*train\.device must be one of cpu, cuda, auto"):
+        bad = tmp_path / "tiny.yaml"
+        bad.write_text("name: x\ndata: {train: [], val: []}\ntrain: {device: gpu}\n")
+        from learned_imu.config import load_config
+
+        load_config(bad)
+    if torch.cuda.is_available():
+        assert resolve_device("cuda") == "cuda" and resolve_device("auto") == "cuda"
+    else:
+        assert resolve_device("auto") == "cpu"
+        with pytest.raises(ConfigError, match="no CUDA device"):
+            resolve_device("cuda")
+    config = dataclasses.replace(
+        TINY, train=dataclasses.replace(TINY.train, epochs=1, calibration_steps=2, device="auto")
+    )
+    train_run(config, tmp_path / "run", progress=False)
+    model, stored = model_from_checkpoint(tmp_path / "run" / "best.pt")
+    assert stored["train"]["device"] == "auto"
+    assert all(p.device.type == "cpu" for p in model.parameters())
+    # the device may change on resume (train.device is a resumable change)
+    cpu = dataclasses.replace(config, train=dataclasses.replace(config.train, device="cpu", epochs=2))
+    assert train_run(cpu, tmp_path / "run", progress=False).epochs == 2
+
+
+def test_cli_refuses_an_unknown_device_and_a_non_positive_epoch_budget(tmp_path):
+    from typer.testing import CliRunner
+
+    from fusion.cli import app
+    from learned_imu.config import save_config
+
+    config = tmp_path / "tiny.yaml"
+    save_config(config, TINY)
+    for flag, value in (("--device", "tpu"), ("--epochs", "0")):
+        result = CliRunner().invoke(app, ["train", "--config", str(config), "--out", str(tmp_path / "r"), flag, value])
+        assert result.exit_code != 0 and flag in result.output
+
+
+def test_small_euroc_config_trains_and_scores_on_real_data(tmp_path, shared_data):
+    """configs/euroc_small.yaml end to end on the real MH_01 / V1_02 excerpt (one epoch: the plumbing, not the
+    accuracy; the accuracy is BENCHMARKS.md's)."""
+    from pathlib import Path
+
+    from learned_imu.config import load_config
+
+    config = load_config(Path(__file__).parents[2] / "configs" / "euroc_small.yaml", data_root=shared_data)
+    config = with_epochs(dataclasses.replace(config, train=dataclasses.replace(config.train, calibration_steps=5)), 1)
+    keep = [v for v in VARIANTS if v.key in ("baseline", "linear_calibration", "airimu")]
+    rows = ablate(config, tmp_path / "abl", variants=keep, progress=False)
+    by = {r.variant: r for r in rows}
+    assert {r.sequence for r in rows} == {"V1_02_medium"}
+    assert 4.0 < by["Baseline"].roe_deg < 5.0  # raw EuRoC gyro bias, ~4.5 deg per second
+    assert by["Linear calibration"].roe_deg < 0.5 and by["AirIMU"].roe_deg < by["Baseline"].roe_deg
+    best = load_checkpoint(tmp_path / "abl" / "airimu" / "best.pt")["best"]
+    assert best["calibrated"] and len(best["noise_scales"]) == 2

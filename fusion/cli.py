@@ -58,7 +58,7 @@ def _run_pgo(config, out, json_out, csv_out, rrd, png, epochs, progress, data_ro
     from rich.table import Table
 
     from fusion.pipeline import ablate_pgo as run
-    from fusion.pipeline import plot, record, write_table
+    from fusion.pipeline import paper_ate, plot, record, write_table
 
     console = Console()
     results = run(config, out, progress=progress, data_root=data_root, epochs=epochs)
@@ -66,11 +66,20 @@ def _run_pgo(config, out, json_out, csv_out, rrd, png, epochs, progress, data_ro
     columns = sorted({(r.sequence, r.gps_hz) for r in rows}, key=lambda c: (c[0], -c[1]))
     table = Table(title=f"{config.name}: ATE (m), mean +- std over {config.options.seeds} GPS seeds")
     table.add_column("Setting")
+    quoted = any(paper_ate(r) is not None for r in rows)  # the paper's sequences: its ATE beside ours
     for sequence, rate in columns:
         table.add_column(f"{sequence} @ {rate:g} Hz")
+        if quoted:
+            table.add_column("paper", style="dim")
     for setting in dict.fromkeys(r.setting for r in rows):
         cells = {(r.sequence, r.gps_hz): r for r in rows if r.setting == setting}
-        table.add_row(setting, *(f"{cells[c].ate_mean_m:.3f} +- {cells[c].ate_std_m:.3f}" for c in columns))
+        values = []
+        for c in columns:
+            values.append(f"{cells[c].ate_mean_m:.3f} +- {cells[c].ate_std_m:.3f}")
+            if quoted:
+                ref = paper_ate(cells[c])
+                values.append("-" if ref is None else f"{ref:.4f}")
+        table.add_row(setting, *values)
     console.print(table)
     write_table(rows, json_out, csv_out)
     written = [p for p in (json_out, csv_out) if p]

@@ -124,13 +124,21 @@ def plot(result: SequenceResult, path: str | Path) -> Path:
     return Path(path)
 
 
+def paper_ate(row: PgoRow) -> float | None:
+    """The paper's ATE (m) for a row's sequence, GPS rate and setting, or None where it has none."""
+    from learned_imu.paper import EUROC_PGO
+
+    return EUROC_PGO.get(row.sequence, {}).get(row.gps_hz, {}).get(row.setting)
+
+
 def write_table(rows: list[PgoRow], json_path: str | Path | None = None, csv_path: str | Path | None = None) -> None:
-    """The ablation rows as JSON (keys setting, gps_hz, sequence, ate_mean_m, ate_std_m) and/or CSV, atomically."""
+    """The ablation rows as JSON (keys setting, gps_hz, sequence, ate_mean_m, ate_std_m, paper_ate_m) and/or CSV,
+    atomically; ``paper_ate_m`` is the AirIMU paper's published ATE for that cell (``learned_imu.paper``), or null."""
     from dataclasses import asdict
 
     from learned_imu.io import write_csv_atomic, write_json_atomic
 
-    records = [asdict(r) for r in rows]
+    records = [{**asdict(r), "paper_ate_m": paper_ate(r)} for r in rows]
     if json_path:
         write_json_atomic(json_path, records)
     if csv_path:

@@ -43,12 +43,14 @@ def test_table_rows_and_files(ablation):
     rows = json.loads(files["json"].read_text())
     first = [(r["setting"], r["gps_hz"]) for r in rows][:2]
     assert first == [("raw IMU + fixed cov", 1.0), ("raw IMU + fixed cov", 0.25)]
-    assert len(rows) == 8 and all(set(r) == {"setting", "gps_hz", "sequence", "ate_mean_m", "ate_std_m"} for r in rows)
+    keys = {"setting", "gps_hz", "sequence", "ate_mean_m", "ate_std_m", "paper_ate_m"}
+    assert len(rows) == 8 and all(set(r) == keys for r in rows)
+    assert all(r["paper_ate_m"] is None for r in rows)  # a simulated sequence: the paper has no value for it
     by = {(r["setting"], r["gps_hz"]): r["ate_mean_m"] for r in rows}
     assert all(0 < v < 5 for v in by.values())
     assert by[("raw IMU + fixed cov", 1.0)] < by[("raw IMU + fixed cov", 0.25)]  # more GPS, less error
     assert "AirIMU + learned cov" in output and "+-" in output
-    assert files["csv"].read_text().splitlines()[0] == "setting,gps_hz,sequence,ate_mean_m,ate_std_m"
+    assert files["csv"].read_text().splitlines()[0] == "setting,gps_hz,sequence,ate_mean_m,ate_std_m,paper_ate_m"
     assert files["png"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
@@ -75,3 +77,12 @@ def test_recording_reads_back(ablation):
     half = np.array(ellipsoids.to_record_batch().column("Ellipsoids3D:half_sizes").to_pylist()).reshape(k, 3)
     assert np.all(half > 0) and np.all(half < 10)
     assert RrdReader(files["rrd"]).blueprints()  # the layout travels with the recording
+
+
+def test_pgo_rows_of_the_papers_sequences_carry_its_ate():
+    from fusion.pgo import PgoRow
+    from fusion.pipeline import paper_ate
+
+    assert paper_ate(PgoRow("AirIMU + learned cov", 0.1, "V2_02_medium", 0.9, 0.1)) == 0.8927
+    assert paper_ate(PgoRow("raw IMU + fixed cov", 1.0, "MH_04_difficult", 0.2, 0.0)) == 0.1491
+    assert paper_ate(PgoRow("AirIMU + learned cov", 0.25, "MH_04_difficult", 0.2, 0.0)) is None

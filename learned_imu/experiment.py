@@ -37,7 +37,7 @@ from learned_imu.errors import ConfigError
 from learned_imu.evaluate import Evaluation, evaluate
 from learned_imu.io import atomic_file, remove_temporaries
 from learned_imu.losses import LossWeights
-from learned_imu.model import AirImuNet, Correction, correct_sequence
+from learned_imu.model import AirImuNet, Correction, correct_sequence, device_of
 from learned_imu.sequence import ImuSequence
 from learned_imu.train import Trainer, calibrate_uncertainty, fit_noise_scales, scale_noise
 from learned_imu.windows import Windows, concat_windows, make_windows
@@ -104,7 +104,7 @@ def correct(model: AirImuNet, sequence: ImuSequence, remove_gravity: bool = Fals
     """The model's output for a whole sequence, (N, 3) fields in float64 on the CPU (streamed unless gravity removal
     needs the ground truth in one pass; computed on the model's device)."""
     model.eval()
-    device = next(model.parameters()).device
+    device = device_of(model)
     gyro = torch.as_tensor(sequence.gyro, dtype=torch.float32, device=device)
     acc = torch.as_tensor(sequence.acc, dtype=torch.float32, device=device)
     if remove_gravity:

@@ -238,6 +238,14 @@ class AirImuNet(nn.Module):
         )
 
 
+def device_of(module: nn.Module) -> torch.device:
+    """Where a module's first parameter (or buffer) lives; the CPU for a module with neither."""
+    tensor = next(module.parameters(), None)
+    if tensor is None:
+        tensor = next(module.buffers(), None)
+    return torch.device("cpu") if tensor is None else tensor.device
+
+
 @torch.no_grad()
 def correct_sequence(model: AirImuNet, gyro: torch.Tensor, acc: torch.Tensor, chunk: int = 4096) -> Correction:
     """Correct one whole sequence by streaming it through ``model`` (eval mode) in chunks of ``chunk`` samples.

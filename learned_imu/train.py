@@ -27,7 +27,7 @@ from learned_imu.losses import (
     normalised_squared_errors_of_variance,
     total_loss,
 )
-from learned_imu.model import AirImuNet
+from learned_imu.model import AirImuNet, device_of
 from learned_imu.preintegration import preintegrate
 from learned_imu.windows import Windows
 
@@ -256,7 +256,7 @@ def noise_residuals(model: AirImuNet, windows: Windows, batch_size: int = 64) ->
     from two float64 preintegrations per batch, one with each sensor's noise alone (on the model's device; the
     result on the CPU)."""
     model.eval()
-    windows = windows.to(next(model.parameters()).device)
+    windows = windows.to(device_of(model))
     errors, gyro_var, acc_var = [], [], []
     for first in range(0, len(windows), batch_size):
         batch = windows.select(torch.arange(first, min(first + batch_size, len(windows))))

@@ -241,6 +241,8 @@ def ablate_imu(
 ) -> None:
     """The paper's IMU ablation: Baseline, Average Bias, linear calibration, AirIMU w/o and with covariance loss;
     prints the rows and the paper's tables with its published values beside ours (learned_imu.ablation)."""
+    import sys
+
     from rich.console import Console
     from rich.table import Table
 
@@ -252,7 +254,7 @@ def ablate_imu(
     except ValueError:
         raise typer.BadParameter(f"--seeds must be integers separated by commas, got {seeds!r}") from None
     rows = ablate(cfg, out, progress=progress, seeds=seed_list)
-    console = Console()
+    console = Console(width=None if sys.stdout.isatty() else 150)  # logs and pipes: wide enough for the tables
     table = Table(title=f"{cfg.name}: IMU ablation, interval {cfg.evaluation.interval} {cfg.evaluation.interval_unit}")
     for column in ("Sequence", "Setting", "Seed", *(c for c, _ in METRIC_COLUMNS), "NSE rot/pos/vel"):
         table.add_column(column)
@@ -272,23 +274,26 @@ def ablate_imu(
 
 
 def _paper_table(paper_table):
-    """A rich table: one row per setting, per sequence and field our mean +- std and the paper's value."""
+    """A rich table: one row per sequence and setting; per field our mean +- std, then the paper's value."""
     from rich.table import Table
 
-    sequences = list(dict.fromkeys(c.sequence for c in paper_table.cells))
-    cells = {(c.setting, c.sequence, c.field): c for c in paper_table.cells}
+    cells = {(c.sequence, c.setting, c.field): c for c in paper_table.cells}
     table = Table(title=paper_table.title)
+    table.add_column("Sequence")
     table.add_column("Setting")
-    columns = [(seq, f) for seq in sequences for f in paper_table.fields]
-    for seq, field in columns:
-        table.add_column(f"{seq}\n{FIELD_LABELS.get(field, field)}")
-        table.add_column("paper", style="dim")
-    for setting in dict.fromkeys(c.setting for c in paper_table.cells):
+    quoted = any(c.paper is not None for c in paper_table.cells)  # the NSE has no paper column
+    for field in paper_table.fields:
+        table.add_column(FIELD_LABELS.get(field, field), justify="right")
+        if quoted:
+            table.add_column("paper", style="dim", justify="right")
+    for sequence, setting in dict.fromkeys((c.sequence, c.setting) for c in paper_table.cells):
         values = []
-        for column in columns:
-            cell = cells.get((setting, *column))
-            values += ["-", "-"] if cell is None else [_ours(cell), "-" if cell.paper is None else f"{cell.paper:.4g}"]
-        table.add_row(setting, *values)
+        for field in paper_table.fields:
+            cell = cells.get((sequence, setting, field))
+            values.append("-" if cell is None else _ours(cell))
+            if quoted:
+                values.append("-" if cell is None or cell.paper is None else f"{cell.paper:.4g}")
+        table.add_row(sequence, setting, *values)
     return table
 
 

@@ -1,0 +1,85 @@
+"""Why a learned EuRoC model is (or is not) better than a constant bias on flights it has not seen.
+
+    python benchmarks/euroc_bias.py [--checkpoint runs/ablate-euroc/airimu_seed0/best.pt] [--data ../shared/data]
+
+Prints, from the real data alone:
+- each flight's own constant gyro bias (the mean of raw minus ground-truth-implied samples, ``average_bias`` on that
+  flight), and its spread over the paper's six training flights (the day-to-day drift a model must cope with);
+- the ROE over 1 s of each test flight corrected by: its own constant bias (an oracle no deployed model has), the
+  average bias of the training flights in the same room (an environment oracle), and the average over all six
+  training flights (the Average Bias baseline).
+With ``--checkpoint``: the model's mean gyro correction per flight and its variation in time, and the ROE of the
+model, of the model's own mean used as a constant, and of the flight's own constant plus the model's time-varying
+part (does what the network adds beyond a constant help?).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from learned_imu.baselines import average_bias
+from learned_imu.datasets import read_sequence
+from learned_imu.evaluate import evaluate
+
+TRAIN = ("MH_01_easy", "MH_03_medium", "MH_05_difficult", "V1_02_medium", "V2_01_easy", "V2_03_difficult")
+TEST = ("MH_04_difficult", "V1_03_difficult", "V2_02_medium")
+ROOM = {"MH": ("MH_01_easy", "MH_03_medium", "MH_05_difficult"), "V1": ("V1_02_medium",),
+        "V2": ("V2_01_easy", "V2_03_difficult")}  # fmt: skip
+
+
+def roe(sequence, gyro) -> float:
+    return evaluate(sequence, 1.0, "s", gyro, sequence.acc).roe_deg
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--data", default=str(Path(__file__).resolve().parents[2] / "shared" / "data"))
+    parser.add_argument("--checkpoint", default=None)
+    args = parser.parse_args()
+    euroc = Path(args.data) / "euroc"
+    flights = {name: read_sequence("euroc", euroc / name) for name in TRAIN + TEST}
+    own = {name: average_bias([seq]).gyro_rad_s for name, seq in flights.items()}
+    print("constant gyro bias of each flight (mrad/s, x y z):")
+    for name in TRAIN + TEST:
+        print(f"  {name:16s} {np.array2string(own[name] * 1e3, precision=2)}")
+    spread = np.std([own[n] for n in TRAIN], axis=0, ddof=1) * np.sqrt(1 + 1 / len(TRAIN))
+    print(f"spread over the training flights, for a new flight: {np.array2string(spread * 1e3, precision=2)} mrad/s")
+    everything = average_bias([flights[n] for n in TRAIN]).gyro_rad_s
+    print("\nROE 1 s (deg): own constant (oracle) | same-room average | all-training average (Average Bias)")
+    for name in TEST:
+        seq = flights[name]
+        room = average_bias([flights[n] for n in ROOM[name[:2]]]).gyro_rad_s
+        print(
+            f"  {name:16s} {roe(seq, seq.gyro - own[name]):.4f} | {roe(seq, seq.gyro - room):.4f} | "
+            f"{roe(seq, seq.gyro - everything):.4f}"
+        )
+    if args.checkpoint:
+        from learned_imu.checkpoint import model_from_checkpoint
+        from learned_imu.experiment import correct
+
+        model, config = model_from_checkpoint(args.checkpoint)
+        gravity = bool(config.get("train", {}).get("remove_gravity", False))
+        print(f"\n{args.checkpoint}: mean gyro correction, its std in time (mrad/s); ROE of the model | its mean as a")
+        print("constant | the flight's own constant + the model's time-varying part")
+        for name in TRAIN + TEST:
+            seq = flights[name]
+            out = correct(model, seq, gravity)
+            d_gyro = out.d_gyro.numpy()
+            line = (
+                f"  {name:16s} mean {np.array2string(-d_gyro.mean(0) * 1e3, precision=2)} "
+                f"std {np.array2string(d_gyro.std(0) * 1e3, precision=2)}"
+            )
+            if name in TEST:
+                varying = d_gyro - d_gyro.mean(0)
+                line += (
+                    f"; ROE {roe(seq, out.gyro.numpy()):.4f} | {roe(seq, seq.gyro + d_gyro.mean(0)):.4f} | "
+                    f"{roe(seq, seq.gyro - own[name] + varying):.4f}"
+                )
+            print(line)
+
+
+if __name__ == "__main__":
+    main()

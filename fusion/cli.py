@@ -63,24 +63,26 @@ def _run_pgo(config, out, json_out, csv_out, rrd, png, epochs, progress, data_ro
     console = Console()
     results = run(config, out, progress=progress, data_root=data_root, epochs=epochs)
     rows = [row for result in results for row in result.rows]
-    columns = sorted({(r.sequence, r.gps_hz) for r in rows}, key=lambda c: (c[0], -c[1]))
-    table = Table(title=f"{config.name}: ATE (m), mean +- std over {config.options.seeds} GPS seeds")
-    table.add_column("Setting")
     quoted = any(paper_ate(r) is not None for r in rows)  # the paper's sequences: its ATE beside ours
-    for sequence, rate in columns:
-        table.add_column(f"{sequence} @ {rate:g} Hz")
-        if quoted:
-            table.add_column("paper", style="dim")
-    for setting in dict.fromkeys(r.setting for r in rows):
-        cells = {(r.sequence, r.gps_hz): r for r in rows if r.setting == setting}
-        values = []
-        for c in columns:
-            values.append(f"{cells[c].ate_mean_m:.3f} +- {cells[c].ate_std_m:.3f}")
+    for sequence in dict.fromkeys(r.sequence for r in rows):  # one table per sequence: settings x GPS rates
+        mine = [r for r in rows if r.sequence == sequence]
+        rates = sorted({r.gps_hz for r in mine}, reverse=True)
+        table = Table(title=f"{config.name}, {sequence}: ATE (m), mean +- std over {config.options.seeds} GPS seeds")
+        table.add_column("Setting")
+        for rate in rates:
+            table.add_column(f"GPS {rate:g} Hz", justify="right")
             if quoted:
-                ref = paper_ate(cells[c])
-                values.append("-" if ref is None else f"{ref:.4f}")
-        table.add_row(setting, *values)
-    console.print(table)
+                table.add_column("paper", style="dim", justify="right")
+        for setting in dict.fromkeys(r.setting for r in mine):
+            cells = {r.gps_hz: r for r in mine if r.setting == setting}
+            values = []
+            for rate in rates:
+                values.append(f"{cells[rate].ate_mean_m:.3f} +- {cells[rate].ate_std_m:.3f}")
+                if quoted:
+                    ref = paper_ate(cells[rate])
+                    values.append("-" if ref is None else f"{ref:.4f}")
+            table.add_row(setting, *values)
+        console.print(table)
     write_table(rows, json_out, csv_out)
     written = [p for p in (json_out, csv_out) if p]
     if rrd:

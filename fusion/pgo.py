@@ -21,11 +21,13 @@ import numpy as np
 
 from factors import load_export
 from fusion.graph import FusionSettings, Gps, Solution, build_graph, solve
+from learned_imu.errors import ConfigError
 from learned_imu.export import export_preintegration, keyframes_every
 from learned_imu.model import Correction
 from learned_imu.sequence import ImuSequence
 
 log = logging.getLogger(__name__)
+SCORE_SPANS = ("keyframes", "gps")
 
 
 @dataclass(frozen=True)
@@ -66,6 +68,13 @@ class PgoOptions:
     keyframe_interval_s: float = 0.1
     fixed_gyro_density: float = 0.004
     fixed_acc_density: float = 0.08
+    # where ATE is scored: "keyframes" (the whole keyframe span) or "gps" (from the first to the last fused fix:
+    # past the last fix the graph dead-reckons, and how far depends on where the fixes fall, not on the setting)
+    score_span: str = "keyframes"
+
+    def __post_init__(self):
+        if self.score_span not in SCORE_SPANS:
+            raise ConfigError(f"options.score_span must be one of {', '.join(SCORE_SPANS)}, got {self.score_span!r}")
 
 
 def write_exports(
@@ -106,11 +115,14 @@ def gps_for(sequence: ImuSequence, rate_hz: float, sigma_m: float, seed: int) ->
     return Gps(fixes.t[keep], fixes.pos[keep], fixes.sigma[keep]), Gps(fixes.t, fixes.pos, fixes.sigma)
 
 
-def ate_m(solution: Solution, truth: Gps) -> float:
+def ate_m(solution: Solution, truth: Gps, fused: Gps | None = None) -> float:
     """RMSE, m, of the fused positions against the reference positions at the reference's own times within the
-    keyframes' span (the trajectory interpolated between keyframes, ``Trajectory.position_at``; no alignment)."""
+    keyframes' span (the trajectory interpolated between keyframes, ``Trajectory.position_at``; no alignment);
+    with ``fused`` (the fixes that were fused), only between its first and last fix (``score_span: gps``)."""
     traj = solution.trajectory
     inside = (truth.t >= traj.t[0]) & (truth.t <= traj.t[-1])
+    if fused is not None:
+        inside &= (truth.t >= fused.t[0]) & (truth.t <= fused.t[-1])
     err = traj.position_at(truth.t[inside]) - truth.pos[inside]
     return float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
 
@@ -136,7 +148,7 @@ def run_sequence(
                 fuse, truth = gps_for(sequence, rate, options.gps_sigma_m, seed)
                 graph, values = build_graph(export, fuse, fusion)
                 solution = solve(graph, values, export.keyframe_t, fusion)
-                ates.append(ate_m(solution, truth))
+                ates.append(ate_m(solution, truth, fuse if options.score_span == "gps" else None))
                 if seed == 0 and rate == options.gps_hz[0]:
                     examples[setting.name] = (solution, fuse)
             rows.append(PgoRow(setting.name, rate, sequence.name, float(np.mean(ates)), float(np.std(ates))))

@@ -86,3 +86,25 @@ def test_pgo_rows_of_the_papers_sequences_carry_its_ate():
     assert paper_ate(PgoRow("AirIMU + learned cov", 0.1, "V2_02_medium", 0.9, 0.1)) == 0.8927
     assert paper_ate(PgoRow("raw IMU + fixed cov", 1.0, "MH_04_difficult", 0.2, 0.0)) == 0.1491
     assert paper_ate(PgoRow("AirIMU + learned cov", 0.25, "MH_04_difficult", 0.2, 0.0)) is None
+
+
+def test_ate_can_be_scored_between_the_first_and_last_fused_fix(tmp_path):
+    from fusion.graph import Gps, Solution, Trajectory
+    from fusion.pgo import ate_m
+
+    t = np.arange(0.0, 10.01, 0.5)
+    pos = np.zeros((len(t), 3))
+    pos[t > 8.0, 0] = 1.0  # the last two seconds dead-reckoned 1 m off
+    traj = Trajectory(t, np.repeat(np.eye(3)[None], len(t), 0), pos, np.zeros((len(t), 3)))
+    solution = Solution(traj, None, None, 0, 0.0)
+    truth = Gps(t, np.zeros((len(t), 3)), np.zeros((len(t), 3)))
+    fused = Gps(np.array([0.0, 4.0, 8.0]), np.zeros((3, 3)), np.full((3, 3), 0.1))
+    assert ate_m(solution, truth) == pytest.approx(np.sqrt(4 / 21))  # 4 of 21 reference times 1 m off
+    assert ate_m(solution, truth, fused) == 0.0
+    bad = tmp_path / "pgo.yaml"
+    bad.write_text("name: x\nexperiment: e.yaml\nrun: r\noptions: {score_span: everywhere}\n")
+    from fusion.config import load_pgo_config
+    from learned_imu.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"pgo\.yaml.*options.*score_span must be one of keyframes, gps"):
+        load_pgo_config(bad)

@@ -54,13 +54,15 @@ def ablate_pgo(
 
 
 def _run_pgo(config, out, json_out, csv_out, rrd, png, epochs, progress, data_root=None) -> None:
+    import sys
+
     from rich.console import Console
     from rich.table import Table
 
     from fusion.pipeline import ablate_pgo as run
     from fusion.pipeline import paper_ate, plot, record, write_table
 
-    console = Console()
+    console = Console(width=None if sys.stdout.isatty() else 150)  # logs and pipes: wide enough for the tables
     results = run(config, out, progress=progress, data_root=data_root, epochs=epochs)
     rows = [row for result in results for row in result.rows]
     quoted = any(paper_ate(r) is not None for r in rows)  # the paper's sequences: its ATE beside ours

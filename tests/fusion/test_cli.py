@@ -33,7 +33,7 @@ def test_demo_runs_through_the_console_script(tmp_path):
     env = {**os.environ, "COLUMNS": "200"}  # no line wrapping by rich
     args = [str(script), "demo", "--out", str(tmp_path / "demo"), "--seeds", "1", "--epochs", "1", "--no-progress"]
     out = subprocess.run(args, check=True, capture_output=True, text=True, env=env, cwd=tmp_path).stdout
-    assert "AirIMU + learned cov" in out and "@ 0.1 Hz" in out
+    assert "AirIMU + learned cov" in out and "GPS 0.1 Hz" in out
     for name in ("ablation.json", "ablation.csv", "demo.rrd", "demo.png"):
         assert f"written: {tmp_path / 'demo' / name}" in out.replace("\n", ""), name
         assert (tmp_path / "demo" / name).stat().st_size > 0

@@ -15,12 +15,14 @@ from learned_imu.datasets.broad import read_broad
 from learned_imu.datasets.csv import read_csv
 from learned_imu.datasets.euroc import read_euroc
 from learned_imu.datasets.kitti import read_kitti
+from learned_imu.datasets.kitti_raw import read_kitti_raw
 from learned_imu.datasets.rosbag import read_rosbag
 from learned_imu.sequence import ImuSequence
 
 READERS: dict[str, Callable[..., ImuSequence | list[ImuSequence]]] = {
     "euroc": read_euroc,
     "kitti": read_kitti,
+    "kitti_raw": read_kitti_raw,
     "broad": read_broad,
     "rosbag": read_rosbag,
     "csv": read_csv,
@@ -40,4 +42,13 @@ def read_sequence(dataset: str, path: str | Path | None = None, **options) -> Im
     return READERS[dataset](path, **options)
 
 
-__all__ = ["READERS", "read_broad", "read_csv", "read_euroc", "read_kitti", "read_rosbag", "read_sequence"]
+__all__ = [
+    "READERS",
+    "read_broad",
+    "read_csv",
+    "read_euroc",
+    "read_kitti",
+    "read_kitti_raw",
+    "read_rosbag",
+    "read_sequence",
+]

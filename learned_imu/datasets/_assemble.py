@@ -158,6 +158,7 @@ def build_sequence(
     check_units: bool = True,
     vel_window_s: float = VEL_WINDOW_S,
     line_of: Callable[[int], int | None] | None = None,
+    frame_interval_s: float = _checks.GYRO_INTERVAL_S,
 ) -> ImuSequence | list[ImuSequence]:
     """Checked sequence(s) from IMU arrays (time stamps already strictly increasing) and optional raw GT.
 
@@ -166,6 +167,7 @@ def build_sequence(
         on_gap: ``"error"`` (default): an IMU gap longer than ``MAX_GAP_STEPS`` median steps raises;
             ``"split"``: return a list with one sequence per gap-free run (named ``<name>_part<k>``);
             ``"keep"``: accept the gaps.
+        frame_interval_s: the frame self-check's gyro interval (``_checks.frame_score``).
     Returns:
         One ``ImuSequence``, or a list of them when ``on_gap="split"``.
     """
@@ -191,7 +193,9 @@ def build_sequence(
         )
     truth = resample_ground_truth(t, gt, vel_window_s=vel_window_s) if gt is not None else None
     if truth is not None and check_frame:
-        _checks.check_frame(t, gyro, acc, truth.rot, truth.valid, gravity, source, gt.source)
+        _checks.check_frame(
+            t, gyro, acc, truth.rot, truth.valid, gravity, source, gt.source, truth.vel, frame_interval_s
+        )
     if on_gap != "split":
         return _make(name, source, t, gyro, acc, gravity, truth, gps, slice(None))
     parts = [s for s in _checks.segments(t) if s.stop - s.start >= 2]

@@ -189,12 +189,19 @@ class FrameScore:
         return self.acc < ACC_TOL and self.gyro < GYRO_TOL
 
 
-def frame_score(t, gyro, acc, rot, valid, gravity) -> FrameScore:
-    """Score one reading of the data (see the module docstring)."""
+def frame_score(t, gyro, acc, rot, valid, gravity, vel=None, interval_s: float = GYRO_INTERVAL_S) -> FrameScore:
+    """Score one reading of the data (see the module docstring). With the ground truth's world velocity ``vel``
+    (N, 3), the mean world specific force is compared with ``(v_last - v_first) / T - gravity`` (a drive that ends
+    faster than it began has a mean acceleration), else with ``-gravity``. ``interval_s``: the gyro is compared with
+    the ground truth's rotation over intervals of this length."""
     world_acc = np.einsum("nij,nj->ni", rot[valid], acc[valid]).mean(axis=0)
-    acc_res = float(np.linalg.norm(world_acc + gravity) / np.linalg.norm(gravity))
+    expected = -gravity
+    rows = np.flatnonzero(valid)
+    if vel is not None and rows.size >= 2 and t[rows[-1]] > t[rows[0]]:
+        expected = expected + (vel[rows[-1]] - vel[rows[0]]) / (t[rows[-1]] - t[rows[0]])
+    acc_res = float(np.linalg.norm(world_acc - expected) / np.linalg.norm(gravity))
     dt = np.diff(t, append=t[-1])
-    step = max(1, int(round(GYRO_INTERVAL_S / np.median(np.diff(t)))))
+    step = max(1, int(round(interval_s / np.median(np.diff(t)))))
     i = np.arange(0, t.shape[0] - step, step)
     j = i + step
     span = t[j] - t[i]
@@ -213,12 +220,16 @@ def frame_score(t, gyro, acc, rot, valid, gravity) -> FrameScore:
     return FrameScore(acc_res, gyro_res, world_acc)
 
 
-def check_frame(t, gyro, acc, rot, valid, gravity, source: object, gt_source: object = None) -> FrameScore | None:
+def check_frame(
+    t, gyro, acc, rot, valid, gravity, source: object, gt_source: object = None, vel=None,
+    interval_s: float = GYRO_INTERVAL_S,
+) -> FrameScore | None:  # fmt: skip
     """Frame self-check of ground truth against the IMU; raises a DataError naming the misread convention.
 
     Args:
         t (N,) s, gyro (N, 3) rad/s, acc (N, 3) m/s^2, rot (N, 3, 3) world <- IMU, valid (N,) bool,
-        gravity (3,) m/s^2 world frame; source: the IMU file, gt_source: the ground-truth file (if different).
+        gravity (3,) m/s^2 world frame; source: the IMU file, gt_source: the ground-truth file (if different);
+        vel (N, 3) the ground truth's world velocity, if any; interval_s: see ``frame_score``.
     Returns:
         The score of the data as read, or None when there is too little valid ground truth to judge.
     """
@@ -226,7 +237,7 @@ def check_frame(t, gyro, acc, rot, valid, gravity, source: object, gt_source: ob
     if int(valid.sum()) < FRAME_MIN_SAMPLES:
         logger.info("%s: frame self-check skipped (%d valid ground-truth samples)", source, int(valid.sum()))
         return None
-    score = frame_score(t, gyro, acc, rot, valid, gravity)
+    score = frame_score(t, gyro, acc, rot, valid, gravity, vel, interval_s)
     if score.ok:
         return score
     found = (
@@ -236,7 +247,9 @@ def check_frame(t, gyro, acc, rot, valid, gravity, source: object, gt_source: ob
     )
     fits = []
     for alt in ALTERNATIVES:
-        alt_score = frame_score(t, alt.gyro_scale * gyro, alt.acc_scale * acc, alt.fix_rot(rot), valid, gravity)
+        alt_score = frame_score(
+            t, alt.gyro_scale * gyro, alt.acc_scale * acc, alt.fix_rot(rot), valid, gravity, vel, interval_s
+        )
         if alt_score.ok:
             fits.append((alt_score.acc / ACC_TOL + alt_score.gyro / GYRO_TOL, alt, alt_score))
     if not fits:

@@ -196,8 +196,9 @@ def test_frame_self_check_without_a_fitting_convention(v102):
 
 
 def test_registry_lists_the_readers_and_rejects_unknown_names(shared_data):
-    assert set(READERS) == {"euroc", "kitti", "broad", "rosbag", "csv"}
-    with pytest.raises(ValueError, match="unknown dataset 'tumvi'; known datasets: broad, csv, euroc, kitti, rosbag"):
+    assert set(READERS) == {"euroc", "kitti", "kitti_raw", "broad", "rosbag", "csv"}
+    known = "broad, csv, euroc, kitti, kitti_raw, rosbag"
+    with pytest.raises(ValueError, match=f"unknown dataset 'tumvi'; known datasets: {known}"):
         read_sequence("tumvi", shared_data)
     seq = read_sequence("kitti", shared_data / "kitti_gtsam")
     assert len(seq) == 46967

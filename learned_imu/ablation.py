@@ -33,11 +33,12 @@ from learned_imu.baselines import average_bias, linear_calibration
 from learned_imu.checkpoint import model_from_checkpoint
 from learned_imu.config import ExperimentConfig
 from learned_imu.evaluate import evaluate
-from learned_imu.experiment import build_windows, correct, load_sequences, train_run
+from learned_imu.experiment import correct, load_sequences, train_run
 from learned_imu.io import write_csv_atomic, write_json_atomic
 from learned_imu.model import AirImuNet
 from learned_imu.sequence import ImuSequence
 from learned_imu.train import noise_residuals
+from learned_imu.windows import make_windows
 
 log = logging.getLogger(__name__)
 
@@ -248,8 +249,14 @@ def score(name: str, sequence: ImuSequence, gyro, acc, config: ExperimentConfig,
 
 
 def calibration(model: AirImuNet, sequence: ImuSequence, config: ExperimentConfig) -> np.ndarray:
-    """(3,) mean e^2 / sigma^2 of rotation, position, velocity over the sequence's windows (see module doc)."""
-    return noise_residuals(model, build_windows([sequence], config, None)).nse()
+    """(3,) mean e^2 / sigma^2 of rotation, position, velocity over the sequence's windows (see module doc); NaN
+    where the sequence has no usable window of ``train.window`` samples (gaps in every one)."""
+    t = config.train
+    windows = make_windows(sequence, t.window, t.every, None, remove_gravity=t.remove_gravity, allow_empty=True)
+    if windows is None:
+        log.warning("%s: no window of %d samples for the NSE", sequence.name, t.window)
+        return np.full(3, np.nan)
+    return noise_residuals(model, windows).nse()
 
 
 def write_rows(rows: list[AblationRow], json_path: str | Path | None = None, csv_path: str | Path | None = None):

@@ -89,11 +89,21 @@ def load_sequences(specs: tuple[SequenceConfig, ...], root: str | Path) -> list[
 
 
 def build_windows(sequences: list[ImuSequence], config: ExperimentConfig, stride: int | None) -> Windows:
-    """Windows of every sequence, concatenated."""
+    """Windows of every sequence, concatenated; a sequence without a usable window (time gaps in every one, as in
+    some KITTI drives) is skipped with a warning, none at all is an error naming them."""
     train = config.train
-    return concat_windows(
-        [make_windows(s, train.window, train.every, stride, remove_gravity=train.remove_gravity) for s in sequences]
-    )
+    parts = []
+    for s in sequences:
+        part = make_windows(s, train.window, train.every, stride, remove_gravity=train.remove_gravity, allow_empty=True)
+        if part is None:
+            log.warning("%s: no window of %d samples without a gap or invalid ground truth; skipped", s.name,
+                        train.window)  # fmt: skip
+        else:
+            parts.append(part)
+    if not parts:
+        names = ", ".join(s.name for s in sequences)
+        raise ValueError(f"no window of {train.window} samples without a gap or invalid ground truth in: {names}")
+    return concat_windows(parts)
 
 
 def loss_weights(config: ExperimentConfig) -> LossWeights:

@@ -2,7 +2,8 @@
 
 A window of L samples starting at sample s carries the IMU samples s .. s+L-1, the ground-truth state at s, and
 the ground-truth states after every ``every``-th sample (AirIMU supervises every k-th; the official default is
-50 of 1000). Only windows whose ground truth is valid throughout are kept.
+50 of 1000). Only windows whose ground truth is valid throughout and that bridge no time gap are kept
+(``learned_imu.evaluate.usable_windows``).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from learned_imu.evaluate import usable_windows
 from learned_imu.preintegration import NavState
 from learned_imu.sequence import ImuSequence
 
@@ -65,10 +67,12 @@ def make_windows(
     stride: int | None = None,
     dtype=torch.float32,
     remove_gravity: bool = False,
-) -> Windows:
+    allow_empty: bool = False,
+) -> Windows | None:
     """Cut ``sequence`` into windows of ``length`` samples every ``stride`` samples (default: ``length``).
 
-    ``remove_gravity`` adds ``gravity_imu`` (the official code's option: the network sees ``acc + R_gt^T g``)."""
+    ``remove_gravity`` adds ``gravity_imu`` (the official code's option: the network sees ``acc + R_gt^T g``).
+    ``allow_empty``: return None instead of raising when no window is usable (gaps or invalid ground truth)."""
     if sequence.gt is None:
         raise ValueError(f"{sequence.name}: training windows need ground truth")
     if not 1 <= every <= length or length >= len(sequence):
@@ -76,7 +80,9 @@ def make_windows(
     stride = stride or length
     gt = sequence.gt
     starts = np.arange(0, len(sequence) - length, stride)
-    starts = starts[[gt.valid[s : s + length + 1].all() for s in starts]]
+    starts = starts[usable_windows(sequence, starts, length)]
+    if len(starts) == 0 and allow_empty:
+        return None
     if len(starts) == 0:
         raise ValueError(f"{sequence.name}: no window of {length} samples with valid ground truth")
     take = starts[:, None] + np.arange(length)

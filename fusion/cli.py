@@ -116,6 +116,7 @@ METRIC_COLUMNS = (
 )
 FIELD_LABELS = {
     "roe_deg": "ROE (deg)",
+    "rpe_m": "RPE (m)",
     "roe_rmse_deg": "RMSE (deg)",
     "rpe_rmse_m": "P-RMSE (m)",
     "roe_rmse_10f_deg": "R-RMSE (deg)",

@@ -119,13 +119,18 @@ class PaperTable:
     cells: tuple[TableCell, ...]
 
 
-# the paper's EuRoC tables: title, fields (learned_imu.metrics), reference values (learned_imu.paper)
+# the paper's tables: title and fields (learned_imu.metrics); reference values in learned_imu.paper
 PAPER_TABLES = (
     ("Gyroscope integration over the interval: ROE (deg) and RMSE (deg)", ("roe_deg", "roe_rmse_deg")),
     ("Integration over evaluation.frames samples: R-RMSE (deg) and P-RMSE (m)", ("roe_rmse_10f_deg", "rpe_rmse_10f_m")),
     ("P-RMSE over the interval (m), the learned-inertial-odometry table", ("rpe_rmse_m",)),
     ("Covariance calibration on the evaluated windows: NSE rotation, position, velocity (1 = calibrated)",
      ("nse_rot", "nse_pos", "nse_vel")),
+)  # fmt: skip
+KITTI_TABLES = (
+    ("KITTI: ROE (deg) and RPE (m) over the interval (the paper's: 10 Hz sync stream; ours: 100 Hz OXTS)",
+     ("roe_deg", "rpe_m")),
+    PAPER_TABLES[-1],
 )  # fmt: skip
 
 
@@ -164,10 +169,13 @@ def summarise(rows: list[AblationRow]) -> list[AblationSummary]:
 
 
 def paper_tables(rows: list[AblationRow], reference: dict | None = None) -> list[PaperTable]:
-    """The paper's tables (``PAPER_TABLES``) from the rows: our mean +- std over seeds beside the paper's values
-    (``reference``: ``learned_imu.paper.EUROC_IMU`` by default). Settings the paper has and we do not run
-    ("Brossard et al.") appear with the paper's values alone, where it reports the field."""
-    reference = paper.EUROC_IMU if reference is None else reference
+    """The paper's tables from the rows: our mean +- std over seeds beside the paper's values. The paper's KITTI
+    table (``KITTI_TABLES``, ``learned_imu.paper.KITTI_IMU``) when the rows are of its KITTI drives, else its EuRoC
+    tables (``PAPER_TABLES``, ``reference`` or ``learned_imu.paper.EUROC_IMU``). Settings the paper has and we do not
+    run ("Brossard et al.") appear with the paper's values alone, where it reports the field."""
+    kitti = any(r.sequence in paper.KITTI_IMU for r in rows)
+    specs = KITTI_TABLES if kitti else PAPER_TABLES
+    reference = (paper.KITTI_IMU if kitti else paper.EUROC_IMU) if reference is None else reference
     summaries = summarise(rows)
     sequences = list(dict.fromkeys(r.sequence for r in rows))
     ours = list(dict.fromkeys(r.variant for r in rows))
@@ -175,7 +183,7 @@ def paper_tables(rows: list[AblationRow], reference: dict | None = None) -> list
     settings = ours + list(dict.fromkeys(quoted))
     by = {(s.variant, s.sequence): s for s in summaries}
     tables = []
-    for title, fields in PAPER_TABLES:
+    for title, fields in specs:
         cells = []
         for setting in settings:
             for sequence in sequences:

@@ -302,3 +302,13 @@ def test_small_euroc_config_trains_and_scores_on_real_data(tmp_path, shared_data
     assert by["Linear calibration"].roe_deg < 0.5 and by["AirIMU"].roe_deg < by["Baseline"].roe_deg
     best = load_checkpoint(tmp_path / "abl" / "airimu" / "best.pt")["best"]
     assert best["calibrated"] and len(best["noise_scales"]) == 2
+
+
+def test_rows_of_the_papers_kitti_drives_get_its_kitti_table():
+    from learned_imu.ablation import AblationRow, paper_tables
+
+    rows = [AblationRow("Baseline", "2011_09_26_drive_0018", 0.15, 0.16, 0.043, 0.07, 0.01, 0.0, 1.0)]
+    tables = paper_tables(rows)
+    assert tables[0].fields == ("roe_deg", "rpe_m") and "KITTI" in tables[0].title
+    cells = {c.field: c for c in tables[0].cells if c.setting == "Baseline"}
+    assert cells["roe_deg"].paper == 0.2451 and cells["rpe_m"].paper == 0.0715 and cells["rpe_m"].mean == 0.043

@@ -12,9 +12,9 @@ import numpy as np
 import torch
 
 from learned_imu import metrics
-from learned_imu.datasets._checks import MAX_GAP_STEPS
 from learned_imu.preintegration import NavState, predict, preintegrate
 from learned_imu.sequence import ImuSequence
+from learned_imu.windows import usable_windows
 
 INTERVAL_UNITS = ("s", "frames")
 
@@ -101,19 +101,6 @@ def evaluate(
         ate_m=metrics.ate_m(est[valid], truth[valid], align=False),
         ate_aligned_m=metrics.ate_m(est[valid], truth[valid], align=True),
     )
-
-
-def usable_windows(sequence: ImuSequence, starts: np.ndarray, length: int) -> np.ndarray:
-    """(W,) bool: windows ``[s, s + length)`` with valid ground truth on all their states and no time gap (a step
-    longer than ``MAX_GAP_STEPS`` median steps, e.g. KITTI's dropped OXTS packets, read with ``on_gap="keep"``):
-    integration restarts after a gap instead of bridging it."""
-    gap = sequence.dt > MAX_GAP_STEPS * float(np.median(sequence.dt))
-    gaps_before = np.concatenate([[0], np.cumsum(gap)])  # gaps among samples [0, k)
-    valid = sequence.gt.valid
-    invalid_before = np.concatenate([[0], np.cumsum(~valid)])
-    no_gap = gaps_before[starts + length] - gaps_before[starts] == 0
-    all_valid = invalid_before[starts + length + 1] - invalid_before[starts] == 0
-    return no_gap & all_valid
 
 
 def _window_length(sequence: ImuSequence, interval: float, unit: str) -> int:

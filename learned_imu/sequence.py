@@ -17,6 +17,16 @@ import numpy as np
 
 from learned_imu.errors import DataError
 
+MAX_GAP_STEPS = 5.0  # a time step longer than this many median steps is a gap
+
+
+def gap_indices(t: np.ndarray, max_gap_steps: float = MAX_GAP_STEPS) -> np.ndarray:
+    """Indices ``i`` where ``t[i+1] - t[i]`` exceeds ``max_gap_steps`` median time steps."""
+    if t.shape[0] < 3:
+        return np.zeros(0, dtype=np.int64)
+    steps = np.diff(t)
+    return np.flatnonzero(steps > max_gap_steps * np.median(steps))
+
 
 def _check_array(source: object, field: str, value: np.ndarray, shape_tail: tuple[int, ...], n: int | None):
     if not isinstance(value, np.ndarray):

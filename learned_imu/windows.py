@@ -3,7 +3,7 @@
 A window of L samples starting at sample s carries the IMU samples s .. s+L-1, the ground-truth state at s, and
 the ground-truth states after every ``every``-th sample (AirIMU supervises every k-th; the official default is
 50 of 1000). Only windows whose ground truth is valid throughout and that bridge no time gap are kept
-(``learned_imu.evaluate.usable_windows``).
+(``usable_windows``, which ``learned_imu.evaluate`` uses too).
 """
 
 from __future__ import annotations
@@ -13,9 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from learned_imu.evaluate import usable_windows
 from learned_imu.preintegration import NavState
-from learned_imu.sequence import ImuSequence
+from learned_imu.sequence import ImuSequence, gap_indices
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,6 +57,19 @@ class Windows:
             self.gyro[index], self.acc[index], self.dt[index], pick(self.start), pick(self.targets), self.gravity,
             self.at, None if self.gravity_imu is None else self.gravity_imu[index],
         )  # fmt: skip
+
+
+def usable_windows(sequence: ImuSequence, starts: np.ndarray, length: int) -> np.ndarray:
+    """(W,) bool: windows ``[s, s + length)`` with valid ground truth on all their states and no time gap
+    (``learned_imu.sequence.gap_indices``: e.g. KITTI's dropped OXTS packets, read with ``on_gap="keep"``), so
+    that integration restarts after a gap instead of bridging it."""
+    gap = np.zeros(len(sequence), dtype=bool)
+    gap[gap_indices(sequence.t)] = True  # sample i is followed by a gap
+    gaps_before = np.concatenate([[0], np.cumsum(gap)])  # gaps after samples [0, k)
+    invalid_before = np.concatenate([[0], np.cumsum(~sequence.gt.valid)])
+    no_gap = gaps_before[starts + length] - gaps_before[starts] == 0
+    all_valid = invalid_before[starts + length + 1] - invalid_before[starts] == 0
+    return no_gap & all_valid
 
 
 def make_windows(

@@ -21,13 +21,13 @@ import numpy as np
 
 from learned_imu.datasets._rotations import matrix_to_quat_wxyz, quat_to_matrix, relative_rotvec
 from learned_imu.errors import DataError
+from learned_imu.sequence import MAX_GAP_STEPS, gap_indices  # noqa: F401 (re-exported: readers and tests use them)
 
 logger = logging.getLogger(__name__)
 
 STANDARD_GRAVITY = 9.80665  # m/s^2, the "g" of accelerometers that report in g
 DEG = np.pi / 180.0
 # a time step longer than this many median steps is a gap (IMU and ground truth alike)
-MAX_GAP_STEPS = 5.0
 ON_DUPLICATE = ("error", "drop")
 ON_GAP = ("error", "split", "keep")
 
@@ -86,14 +86,6 @@ def check_timestamps(
             )
         logger.warning("%s: dropping %d samples with duplicated time stamps", source, int(dup.sum()))
     return np.flatnonzero(np.concatenate([[True], ~dup]))
-
-
-def gap_indices(t: np.ndarray, max_gap_steps: float = MAX_GAP_STEPS) -> np.ndarray:
-    """Indices ``i`` where ``t[i+1] - t[i]`` exceeds ``max_gap_steps`` median time steps."""
-    if t.shape[0] < 3:
-        return np.zeros(0, dtype=np.int64)
-    steps = np.diff(t)
-    return np.flatnonzero(steps > max_gap_steps * np.median(steps))
 
 
 def segments(t: np.ndarray, max_gap_steps: float = MAX_GAP_STEPS) -> list[slice]:

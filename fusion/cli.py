@@ -54,15 +54,12 @@ def ablate_pgo(
 
 
 def _run_pgo(config, out, json_out, csv_out, rrd, png, epochs, progress, data_root=None) -> None:
-    import sys
-
-    from rich.console import Console
     from rich.table import Table
 
     from fusion.pipeline import ablate_pgo as run
     from fusion.pipeline import paper_ate, plot, record, write_table
 
-    console = Console(width=None if sys.stdout.isatty() else 150)  # logs and pipes: wide enough for the tables
+    console = _wide_console()
     results = run(config, out, progress=progress, data_root=data_root, epochs=epochs)
     rows = [row for result in results for row in result.rows]
     quoted = any(paper_ate(r) is not None for r in rows)  # the paper's sequences: its ATE beside ours
@@ -246,9 +243,6 @@ def ablate_imu(
 ) -> None:
     """The paper's IMU ablation: Baseline, Average Bias, linear calibration, AirIMU w/o and with covariance loss;
     prints the rows and the paper's tables with its published values beside ours (learned_imu.ablation)."""
-    import sys
-
-    from rich.console import Console
     from rich.table import Table
 
     from learned_imu.ablation import ablate, paper_tables, write_rows
@@ -259,7 +253,7 @@ def ablate_imu(
     except ValueError:
         raise typer.BadParameter(f"--seeds must be integers separated by commas, got {seeds!r}") from None
     rows = ablate(cfg, out, progress=progress, seeds=seed_list)
-    console = Console(width=None if sys.stdout.isatty() else 150)  # logs and pipes: wide enough for the tables
+    console = _wide_console()
     table = Table(title=f"{cfg.name}: IMU ablation, interval {cfg.evaluation.interval} {cfg.evaluation.interval_unit}")
     for column in ("Sequence", "Setting", "Seed", *(c for c, _ in METRIC_COLUMNS), "NSE rot/pos/vel"):
         table.add_column(column)
@@ -276,6 +270,15 @@ def ablate_imu(
     for path in (json_out, csv_out):
         if path:
             console.print(f"table written to {path}")
+
+
+def _wide_console():
+    """A rich console; 150 columns when not a terminal (logs, pipes), so the tables do not wrap."""
+    import sys
+
+    from rich.console import Console
+
+    return Console(width=None if sys.stdout.isatty() else 150)
 
 
 def _paper_table(paper_table):

@@ -168,14 +168,13 @@ def summarise(rows: list[AblationRow]) -> list[AblationSummary]:
     return out
 
 
-def paper_tables(rows: list[AblationRow], reference: dict | None = None) -> list[PaperTable]:
+def paper_tables(rows: list[AblationRow]) -> list[PaperTable]:
     """The paper's tables from the rows: our mean +- std over seeds beside the paper's values. The paper's KITTI
-    table (``KITTI_TABLES``, ``learned_imu.paper.KITTI_IMU``) when the rows are of its KITTI drives, else its EuRoC
-    tables (``PAPER_TABLES``, ``reference`` or ``learned_imu.paper.EUROC_IMU``). Settings the paper has and we do not
-    run ("Brossard et al.") appear with the paper's values alone, where it reports the field."""
+    table (``KITTI_TABLES``, values ``learned_imu.paper.KITTI_IMU``) when the rows are of its KITTI drives, else its
+    EuRoC tables (``PAPER_TABLES``, ``learned_imu.paper.EUROC_IMU``). Settings the paper has and we do not run
+    ("Brossard et al.") appear with the paper's values alone, where it reports the field."""
     kitti = any(r.sequence in paper.KITTI_IMU for r in rows)
-    specs = KITTI_TABLES if kitti else PAPER_TABLES
-    reference = (paper.KITTI_IMU if kitti else paper.EUROC_IMU) if reference is None else reference
+    specs, reference = (KITTI_TABLES, paper.KITTI_IMU) if kitti else (PAPER_TABLES, paper.EUROC_IMU)
     summaries = summarise(rows)
     sequences = list(dict.fromkeys(r.sequence for r in rows))
     ours = list(dict.fromkeys(r.variant for r in rows))

@@ -96,8 +96,7 @@ def build_windows(sequences: list[ImuSequence], config: ExperimentConfig, stride
     for s in sequences:
         part = make_windows(s, train.window, train.every, stride, remove_gravity=train.remove_gravity, allow_empty=True)
         if part is None:
-            log.warning("%s: no window of %d samples without a gap or invalid ground truth; skipped", s.name,
-                        train.window)  # fmt: skip
+            log.warning("%s: no usable window of %d samples (gaps, invalid ground truth); skipped", s.name, train.window)
         else:
             parts.append(part)
     if not parts:

@@ -96,7 +96,7 @@ def build_windows(sequences: list[ImuSequence], config: ExperimentConfig, stride
     for s in sequences:
         part = make_windows(s, train.window, train.every, stride, remove_gravity=train.remove_gravity, allow_empty=True)
         if part is None:
-            log.warning("%s: no usable window of %d samples (gaps, invalid ground truth); skipped", s.name, train.window)
+            log.warning("%s: no usable window of %d samples (gaps, invalid truth); skipped", s.name, train.window)
         else:
             parts.append(part)
     if not parts:

@@ -48,9 +48,9 @@ ON_BACKWARD = ("error", "drop")
 FRAME_INTERVAL_S = 0.3
 CSV_COLUMNS = 16  # t, gyro(3), acc(3), pos(3), rpy(3), vel(3)
 OXTS_FIELDS = 30  # KITTI's dataformat.txt
-# indices into the 30 OXTS fields (dataformat.txt)
-LAT, LON, ALT, ROLL, PITCH, YAW, VN, VE, VU = 0, 1, 2, 3, 4, 5, 6, 7, 10
-AX, AY, AZ, WX, WY, WZ = 11, 12, 13, 17, 18, 19
+# the OXTS fields (dataformat.txt) that make the CSV's columns after t: wx wy wz, ax ay az, lat lon alt (converted to
+# ENU), roll pitch yaw, ve vn vu
+OXTS_TO_CSV = [17, 18, 19, 11, 12, 13, 0, 1, 2, 3, 4, 5, 7, 6, 10]
 
 
 def read_kitti_raw(
@@ -77,36 +77,33 @@ def read_kitti_raw(
     if on_backward not in ON_BACKWARD:
         raise ValueError(f"on_backward must be one of {ON_BACKWARD}, got {on_backward!r}")
     path = Path(path)
-    if path.is_dir():
-        name, source, t, fields, line_of = _read_oxts_folder(path)
-        pos = None  # from lat/lon/alt after the time checks (the origin is the first kept packet)
+    if path.is_dir():  # rows in the CSV's column order, lat / lon / alt in the position columns for now
+        name, source, rows, line_of = _read_oxts_folder(path)
     elif path.is_file():
         table = read_table(path, delimiter=",", min_columns=CSV_COLUMNS, field="oxts")
-        values = table.data[:, :CSV_COLUMNS]
-        table.require_finite(values, "oxts")
-        name, source, t, line_of = path.stem, path, values[:, 0], table.line_of
-        fields = np.zeros((len(values), OXTS_FIELDS))
-        fields[:, [WX, WY, WZ, AX, AY, AZ]] = values[:, 1:7]
-        fields[:, [ROLL, PITCH, YAW]] = values[:, 10:13]
-        fields[:, [VE, VN, VU]] = values[:, 13:16]
-        pos = values[:, 7:10]
+        rows = table.data[:, :CSV_COLUMNS]
+        table.require_finite(rows, "oxts")
+        name, source, line_of = path.stem, path, table.line_of
     else:
         raise DataError(path, "path", "not found (expected a KITTI raw <drive>.csv or a drive folder holding oxts/)")
-    keep = _monotonic(t, source, on_backward, line_of)
-    keep = keep[check_timestamps(t[keep], source, "t", on_duplicate=on_duplicate, line_of=lambda r: line_of(keep[r]))]
-    t, fields = t[keep], fields[keep]
-    pos = _enu(fields, source) if pos is None else pos[keep]
+    monotonic = _monotonic(rows[:, 0], source, on_backward, line_of)
+    unique = check_timestamps(
+        rows[monotonic, 0], source, "t", on_duplicate=on_duplicate, line_of=lambda r: line_of(monotonic[r])
+    )
+    keep = monotonic[unique]
+    rows = rows[keep]
+    t, gyro, acc, pos, rpy, vel = rows[:, 0], rows[:, 1:4], rows[:, 4:7], rows[:, 7:10], rows[:, 10:13], rows[:, 13:]
+    if path.is_dir():  # the local ENU origin is the first kept packet
+        pos = _enu(pos, source)
     gt = None
     if ground_truth:
-        rot = _rotation(fields[:, ROLL], fields[:, PITCH], fields[:, YAW])
-        vel = fields[:, [VE, VN, VU]]
-        gt = GtSamples(t, rot, pos, vel, np.ones(len(t), dtype=bool), source)
+        gt = GtSamples(t, _rotation(*rpy.T), pos, vel, np.ones(len(t), dtype=bool), source)
     return build_sequence(
         name,
         source,
         t,
-        fields[:, [WX, WY, WZ]],
-        fields[:, [AX, AY, AZ]],
+        gyro,
+        acc,
         np.array([0.0, 0.0, -gravity]),
         gt=gt,
         on_gap=on_gap,
@@ -144,22 +141,22 @@ def _rotation(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarra
     return Rotation.from_euler("ZYX", np.stack([yaw, pitch, roll], axis=1)).as_matrix()
 
 
-def _enu(fields: np.ndarray, source) -> np.ndarray:
-    """(N, 3) local east / north / up positions, m, of the packets' lat / lon / alt about the first packet."""
+def _enu(geodetic: np.ndarray, source) -> np.ndarray:
+    """(N, 3) local east / north / up positions, m, of (N, 3) lat / lon [deg] / alt [m] about the first row."""
     try:
         import pymap3d
     except ImportError as error:  # a dependency of the package; named for a broken install
         raise DependencyError("reading KITTI's official oxts/ layout needs pymap3d (pip install pymap3d)") from error
-    lat, lon, alt = fields[:, LAT], fields[:, LON], fields[:, ALT]
+    lat, lon, alt = geodetic.T
     if (np.abs(lat) > 90).any() or (np.abs(lon) > 180).any():
         row = int(np.argmax((np.abs(lat) > 90) | (np.abs(lon) > 180)))
         raise DataError(source, "lat/lon", f"packet {row}: ({lat[row]}, {lon[row]}) is not a position in degrees")
-    east, north, up = pymap3d.geodetic2enu(lat, lon, alt, lat[0], lon[0], alt[0])
-    return np.stack([east, north, up], axis=1)
+    return np.stack(pymap3d.geodetic2enu(lat, lon, alt, lat[0], lon[0], alt[0]), axis=1)
 
 
 def _read_oxts_folder(folder: Path):
-    """(name, source, t (N,), fields (N, 30), line_of) from an official drive or ``oxts`` folder."""
+    """(name, source, rows (N, 16) in the CSV's column order with lat / lon / alt as the position, line_of) from an
+    official drive or ``oxts`` folder."""
     oxts = folder / "oxts" if (folder / "oxts").is_dir() else folder
     stamps, data = oxts / "timestamps.txt", oxts / "data"
     if not stamps.is_file() or not data.is_dir():
@@ -181,17 +178,17 @@ def _read_oxts_folder(folder: Path):
             raise DataError(file, "oxts", f"expected {OXTS_FIELDS} finite OXTS fields, got {values.size}", line=1)
         fields[row] = values
     name = oxts.parent.name if oxts.name == "oxts" else oxts.name
-    return name, stamps, t, fields, lambda row: lines[int(row)][0]
+    rows = np.column_stack([t, fields[:, OXTS_TO_CSV]])
+    return name, stamps, rows, lambda row: lines[int(row)][0]
 
 
 def _seconds_of_day(text: str, source: Path, line: int) -> float:
-    """``YYYY-MM-DD hh:mm:ss.fffffffff`` -> seconds since that day's midnight (nanoseconds kept)."""
-    day, _, clock = text.partition(" ")
-    whole, _, fraction = clock.partition(".")
+    """``YYYY-MM-DD hh:mm:ss.fffffffff`` -> seconds since that day's midnight (nanoseconds kept: the fraction is
+    parsed as its own number, datetime would truncate it to microseconds)."""
+    whole, _, fraction = text.partition(".")
     try:
-        datetime.strptime(f"{day} {whole}", "%Y-%m-%d %H:%M:%S")
-        hours, minutes, seconds = (int(x) for x in whole.split(":"))
+        clock = datetime.strptime(whole, "%Y-%m-%d %H:%M:%S")
         frac = float(f"0.{fraction}") if fraction else 0.0
     except ValueError as error:
         raise DataError(source, "t", f"not a time stamp 'YYYY-MM-DD hh:mm:ss.f': {text!r}", line=line) from error
-    return hours * 3600.0 + minutes * 60.0 + seconds + frac
+    return clock.hour * 3600.0 + clock.minute * 60.0 + clock.second + frac

@@ -5,11 +5,13 @@ consecutive keyframes -> GPS factors at the keyframes nearest to each fix -> a p
 initial values -> ``gtsam.LevenbergMarquardtOptimizer`` -> a typed ``Trajectory``.
 
 Keys: ``X(k)`` (``Pose3``, world <- IMU), ``V(k)`` (world-frame velocity, m/s) for keyframe k, as
-``gtsam.ImuFactor`` uses them. The exported deltas are already corrected, so no bias state is estimated: with the
-default ``backend="gtsam"`` every ``gtsam.ImuFactor`` (C++, the same residual as ``factors.LearnedImuFactor``)
-shares one bias key ``B(0)`` held at zero by a ``NonlinearEquality`` (a hard constraint, not a tight prior that would
-ill-condition the marginals); ``backend="custom"`` uses ``LearnedImuFactor``
-without a bias key.
+``gtsam.ImuFactor`` uses them. The exported deltas are already corrected, so by default no bias state is estimated:
+with the default ``backend="gtsam"`` every ``gtsam.ImuFactor`` (C++, the same residual as
+``factors.LearnedImuFactor``) shares one bias key ``B(0)`` held at zero by a ``NonlinearEquality`` (a hard
+constraint, not a tight prior that would ill-condition the marginals); ``backend="custom"`` uses ``LearnedImuFactor``
+without a bias key. With ``bias=BiasStates(...)`` (raw samples, as GTSAM's ``IMUKittiExampleGPS.py``) each interval
+k has its own bias ``B(k)`` ([acc m/s^2, gyro rad/s], ``gtsam.imuBias.ConstantBias``), corrected to first order by
+the export's bias Jacobians, linked by a random walk and held near zero by a prior on ``B(0)``.
 
 Initial values (``fusion.initial``): of two guesses, the one with the lower graph error -- GPS-interpolated
 positions, or a window-by-window solution; without a known first state, an initial alignment to the GPS track.
@@ -73,6 +75,23 @@ class FusionSettings:
     init_window: int = 100  # keyframes per window of the sequential initialisation
 
 
+@dataclass(frozen=True)
+class BiasStates:
+    """Bias states as GTSAM's ``IMUKittiExampleGPS.py`` models them: ``B(k) - B(k+1)`` is zero-mean with sigma
+    ``sqrt(n) * walk_sigma`` per axis (``n`` IMU samples between the keyframes, a per-sample random walk) and
+    ``B(0)`` has a zero-mean prior. Sigmas (standard deviations): acc in m/s^2, gyro in rad/s."""
+
+    acc_walk_sigma: float
+    gyro_walk_sigma: float
+    acc_prior_sigma: float
+    gyro_prior_sigma: float
+
+    def __post_init__(self):
+        for name, value in vars(self).items():
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"BiasStates.{name} must be a positive number, got {value!r}")
+
+
 @dataclass(frozen=True, eq=False)
 class Trajectory:
     """A trajectory at the keyframes: ``t`` (K,) s; ``rot`` (K, 3, 3) world <- IMU; ``pos`` (K, 3) m; ``vel``
@@ -124,14 +143,19 @@ class Solution:
 
 
 def build_graph(
-    export: Export | str | Path, gps: Gps, settings: FusionSettings | None = None, initial_state=None
+    export: Export | str | Path,
+    gps: Gps,
+    settings: FusionSettings | None = None,
+    initial_state=None,
+    bias: BiasStates | None = None,
 ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
     """The pose graph of an export and GPS fixes, and its initial values (see the module docstring).
 
     ``initial_state`` = (rot (3, 3), pos (3,), vel (3,)) anchors the prior on keyframe 0; default: the export's
     ground truth at the first keyframe if it has one, else an initial alignment to the GPS track (position and
     velocity from the fixes, roll and pitch from gravity, yaw by search; its prior is loose:
-    ``ALIGNED_PRIOR_SIGMAS``).
+    ``ALIGNED_PRIOR_SIGMAS``). ``bias``: estimate a bias per keyframe interval (module docstring); the initial
+    values are then found on the graph without bias states, every bias starting at zero.
     """
     settings = settings or FusionSettings()
     export = export if isinstance(export, Export) else load_export(export)
@@ -188,7 +212,33 @@ def build_graph(
                 init_graph.add(graph.at(i))
         for factor in (f for fixes in init_gps.values() for f in fixes):
             init_graph.add(factor)
-    return graph, min(candidates, key=init_graph.error)
+    values = min(candidates, key=init_graph.error)
+    if bias is None:
+        return graph, values
+    others = [f for fixes in gps_factors.values() for f in fixes] + priors
+    return _with_bias_states(values, export, bias, settings.backend, others)
+
+
+def _with_bias_states(values: gtsam.Values, export: Export, bias: BiasStates, backend: str, others: list):
+    """The graph of ``others`` (GPS factors and priors), the export's IMU factors on ``B(k)``, the bias random walk
+    and prior (``BiasStates``); ``values`` with every ``B(k)`` at zero in place of the constant ``B(0)``."""
+    graph = gtsam.NonlinearFactorGraph()
+    for factor in [*from_export(export.path, X, V, B, backend)[0], *others]:
+        graph.add(factor)
+    zero = gtsam.imuBias.ConstantBias()
+    samples = np.diff(export.keyframe_index)
+    for k, n in enumerate(samples):
+        walk = np.sqrt(n) * np.array([bias.acc_walk_sigma] * 3 + [bias.gyro_walk_sigma] * 3)
+        graph.add(gtsam.BetweenFactorConstantBias(B(k), B(k + 1), zero, gtsam.noiseModel.Diagonal.Sigmas(walk)))
+    prior = np.array([bias.acc_prior_sigma] * 3 + [bias.gyro_prior_sigma] * 3)
+    graph.add(gtsam.PriorFactorConstantBias(B(0), zero, gtsam.noiseModel.Diagonal.Sigmas(prior)))
+    out = gtsam.Values()
+    for k in range(len(samples) + 1):
+        out.insert(X(k), values.atPose3(X(k)))
+        out.insert(V(k), values.atVector(V(k)))
+        out.insert(B(k), zero)
+    check_values(graph, out)
+    return graph, out
 
 
 def solve(

@@ -5,14 +5,22 @@ Per evaluation sequence: the model corrects the IMU and predicts its noise; four
 (samples raw | AirIMU) x (covariance fixed | learned); for each GPS rate and seed the graph is solved
 (``fusion.graph``) and scored by ATE (RMSE of keyframe positions, no alignment: GPS fixes the world frame).
 
-GPS: simulated from the ground truth (``gps_sigma_m`` per axis, seeded) at each rate, or, for a sequence with
-real fixes and no ground truth (KITTI), the real fixes decimated to the rate with the seed choosing the phase,
-scored against all real fixes. The fixed covariance is the VINS-Mono EuRoC setting (acc 0.08 m/s^2/sqrt(Hz),
-gyro 0.004 rad/s/sqrt(Hz)), as in the paper.
+GPS (``options.gps_source``): simulated from the ground truth (``gps_sigma_m`` per axis, seeded) at each rate, or
+the sequence's recorded fixes (their own sigma) decimated to the rate with the seed choosing the phase (so there are
+only as many distinct draws as fixes per fused fix: more seeds are not run); scored against the ground truth at
+its own times, or against all recorded fixes where there is none. The fixed covariance is the VINS-Mono EuRoC
+setting (acc 0.08 m/s^2/sqrt(Hz), gyro 0.004 rad/s/sqrt(Hz)), as in the paper.
+
+``options.gtsam_example`` adds a fifth row, ``GTSAM_EXAMPLE``: the settings of GTSAM's ``IMUKittiExampleGPS.py``
+on the raw IMU (its noise densities from ``KittiEquivBiasedImu_metadata.txt``, integration noise 0, a bias state
+per keyframe with its per-sample random walk and bias prior), in the same graph, keyframes, GPS fixes and noise,
+first-state prior and Levenberg-Marquardt solver as the other rows (the example runs ISAM2 with a keyframe at every
+1 Hz fix; ``benchmarks/kitti_gtsam_example.py`` runs it as shipped).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -20,23 +28,36 @@ from pathlib import Path
 import numpy as np
 
 from factors import load_export
-from fusion.graph import FusionSettings, Gps, Solution, build_graph, solve
+from fusion.graph import BiasStates, FusionSettings, Gps, Solution, build_graph, solve
 from learned_imu.errors import ConfigError
-from learned_imu.export import export_preintegration, keyframes_every
+from learned_imu.export import export_preintegration, keyframes_every, nearest_samples
 from learned_imu.model import Correction
-from learned_imu.sequence import ImuSequence
+from learned_imu.sequence import GpsFixes, ImuSequence, gap_indices
 
 log = logging.getLogger(__name__)
 SCORE_SPANS = ("keyframes", "gps")
+GPS_SOURCES = ("auto", "simulated", "recorded")
+KEYFRAMES = ("interval", "fixes")
 
 
 @dataclass(frozen=True)
 class PgoSetting:
-    """One setting: which samples (``"raw"`` or ``"airimu"``) and which covariance (``"fixed"`` or ``"learned"``)."""
+    """One setting: which samples (``"raw"`` or ``"airimu"``) and which covariance (``"fixed"`` or ``"learned"``).
+
+    ``noise_density``: (gyro rad/s/sqrt(Hz), acc m/s^2/sqrt(Hz)), sigmas, of a ``"fixed"`` covariance (None: the
+    options' ``fixed_*_density``); ``bias``: estimate bias states (``fusion.graph.BiasStates``); ``key``: the
+    export's file-name part."""
 
     name: str
     samples: str
     covariance: str
+    noise_density: tuple[float, float] | None = None
+    bias: BiasStates | None = None
+    key: str = ""
+
+    @property
+    def file_key(self) -> str:
+        return self.key or f"{self.samples}_{self.covariance}"
 
 
 SETTINGS = (
@@ -45,6 +66,13 @@ SETTINGS = (
     PgoSetting("raw IMU + learned cov", "raw", "learned"),
     PgoSetting("AirIMU + learned cov", "airimu", "learned"),
 )
+# GTSAM's IMUKittiExampleGPS.py, from KittiEquivBiasedImu_metadata.txt: GyroscopeSigma 1.75e-4, AccelerometerSigma
+# 0.01 (continuous-time sigmas), AccelerometerBiasSigma 1.67e-4 and GyroscopeBiasSigma 2.91e-6 per sample (the
+# example scales them by sqrt(samples) per interval), bias prior sigmas 0.1 (acc) and 5e-5 (gyro)
+GTSAM_EXAMPLE = PgoSetting(
+    "GTSAM example (raw IMU + bias states)", "raw", "fixed", (1.75e-4, 0.01), BiasStates(1.67e-4, 2.91e-6, 0.1, 5e-5),
+    key="raw_gtsam_example",
+)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -71,33 +99,76 @@ class PgoOptions:
     # where ATE is scored: "keyframes" (the whole keyframe span) or "gps" (from the first to the last fused fix:
     # past the last fix the graph dead-reckons, and how far depends on where the fixes fall, not on the setting)
     score_span: str = "keyframes"
+    # "simulated" (from the ground truth), "recorded" (the sequence's own fixes) or "auto" (simulated where there is
+    # ground truth, else recorded)
+    gps_source: str = "auto"
+    # "interval": a keyframe every keyframe_interval_s; "fixes": one at the sample of every recorded fix (within half
+    # a sample period; fixes inside a gap of the IMU are not used), so that each fused fix has its keyframe
+    keyframes: str = "interval"
+    gtsam_example: bool = False  # add the GTSAM_EXAMPLE row
+    # (gyro rad/s/sqrt(Hz), acc m/s^2/sqrt(Hz)) sigmas, at least, of a sample that is held across a time gap of the
+    # IMU (longer than MAX_GAP_STEPS median steps: KITTI's dropped OXTS packets), in every setting; null: none
+    gap_noise_density: tuple[float, float] | None = None
 
     def __post_init__(self):
         if self.score_span not in SCORE_SPANS:
             raise ConfigError(f"options.score_span must be one of {', '.join(SCORE_SPANS)}, got {self.score_span!r}")
+        if self.keyframes not in KEYFRAMES:
+            raise ConfigError(f"options.keyframes must be one of {', '.join(KEYFRAMES)}, got {self.keyframes!r}")
+        if self.gps_source not in GPS_SOURCES:
+            raise ConfigError(f"options.gps_source must be one of {', '.join(GPS_SOURCES)}, got {self.gps_source!r}")
+
+    @property
+    def settings(self) -> tuple[PgoSetting, ...]:
+        return SETTINGS + ((GTSAM_EXAMPLE,) if self.gtsam_example else ())
 
 
 def write_exports(
     sequence: ImuSequence, correction: Correction, folder: Path, options: PgoOptions, settings=SETTINGS
 ) -> dict[str, Path]:
     """One export per setting for ``sequence`` (the model's ``correction``, (N, 3) float64 fields)."""
-    index = keyframes_every(sequence, options.keyframe_interval_s)
+    if options.keyframes == "fixes":
+        if sequence.gps is None:
+            raise ConfigError(f"options.keyframes: 'fixes' needs recorded GPS fixes; {sequence.name} has none")
+        index = np.unique(nearest_samples(sequence, sequence.gps.t)[0])
+    else:
+        index = keyframes_every(sequence, options.keyframe_interval_s)
     out = {}
     for setting in settings:
         gyro, acc = (None, None) if setting.samples == "raw" else (correction.gyro.numpy(), correction.acc.numpy())
         if setting.covariance == "fixed":
-            covs = (options.fixed_gyro_density**2, options.fixed_acc_density**2)
+            gyro_sigma, acc_sigma = setting.noise_density or (options.fixed_gyro_density, options.fixed_acc_density)
+            covs = (gyro_sigma**2, acc_sigma**2)
         else:
             covs = (correction.gyro_cov.numpy(), correction.acc_cov.numpy())
-        path = folder / f"{sequence.name}__{setting.samples}_{setting.covariance}.npz"
+        if options.gap_noise_density is not None:
+            covs = _with_gap_noise(sequence, covs, options.gap_noise_density)
+        path = folder / f"{sequence.name}__{setting.file_key}.npz"
         out[setting.name] = export_preintegration(path, sequence, index, *covs, gyro, acc)
     return out
 
 
-def gps_for(sequence: ImuSequence, rate_hz: float, sigma_m: float, seed: int) -> tuple[Gps, Gps]:
-    """(GPS to fuse, GPS to score against). Simulated from ground truth when the sequence has it; else the real
-    fixes decimated to ``rate_hz`` (the seed picks the phase) and scored against all of them."""
-    if sequence.gt is not None:
+def _with_gap_noise(sequence: ImuSequence, covs, gap_sigmas) -> tuple[np.ndarray, np.ndarray]:
+    """Per-sample (N, 3) densities (gyro, acc) with each sample held across a time gap raised to at least
+    ``gap_sigmas`` squared (``PgoOptions.gap_noise_density``)."""
+    gap = gap_indices(sequence.t)
+    out = []
+    for cov, sigma in zip(covs, gap_sigmas, strict=True):
+        cov = np.array(np.broadcast_to(cov, (len(sequence), 3)), dtype=float)
+        cov[gap] = np.maximum(cov[gap], sigma**2)
+        out.append(cov)
+    return out[0], out[1]
+
+
+def gps_for(sequence: ImuSequence, rate_hz: float, sigma_m: float, seed: int, source: str = "auto") -> tuple[Gps, Gps]:
+    """(GPS to fuse, GPS to score against). ``source`` (module docstring): ``"simulated"`` from the ground truth,
+    ``"recorded"``: the sequence's fixes decimated to ``rate_hz`` (the seed picks the phase), scored against the
+    ground truth where it is valid, else against all fixes; ``"auto"``: simulated when there is ground truth."""
+    if source not in GPS_SOURCES:
+        raise ValueError(f"gps_for: source must be one of {GPS_SOURCES}, got {source!r}")
+    if source == "simulated" and sequence.gt is None:
+        raise ValueError(f"{sequence.name}: simulated GPS needs ground truth")
+    if source != "recorded" and sequence.gt is not None:
         step = max(1, int(round(1.0 / (rate_hz * float(np.median(sequence.dt))))))
         index = np.arange(0, len(sequence), step)
         index = index[sequence.gt.valid[index]]
@@ -109,10 +180,34 @@ def gps_for(sequence: ImuSequence, rate_hz: float, sigma_m: float, seed: int) ->
     if sequence.gps is None:
         raise ValueError(f"{sequence.name}: PGO needs ground truth or GPS fixes")
     fixes = sequence.gps
-    period = float(np.median(np.diff(fixes.t)))
-    step = max(1, int(round(1.0 / (rate_hz * period))))
+    step = recorded_phases(sequence, rate_hz)
     keep = np.arange(seed % step, len(fixes.t), step)
-    return Gps(fixes.t[keep], fixes.pos[keep], fixes.sigma[keep]), Gps(fixes.t, fixes.pos, fixes.sigma)
+    truth = Gps(fixes.t, fixes.pos, fixes.sigma)
+    if sequence.gt is not None:
+        valid = sequence.gt.valid
+        truth = Gps(sequence.t[valid], sequence.gt.pos[valid], np.zeros((int(valid.sum()), 3)))
+    return Gps(fixes.t[keep], fixes.pos[keep], fixes.sigma[keep]), truth
+
+
+def fixes_on_samples(sequence: ImuSequence) -> ImuSequence:
+    """``sequence`` with only the recorded fixes that fall on an IMU sample (within half a sample period); the
+    others (inside a gap of the IMU) are dropped with a warning."""
+    if sequence.gps is None:
+        raise ValueError(f"{sequence.name}: no recorded GPS fixes")
+    _, on_sample = nearest_samples(sequence, sequence.gps.t)
+    if not on_sample.all():
+        log.warning("%s: %d of %d GPS fixes lie in gaps of the IMU and are not used", sequence.name,
+                    int((~on_sample).sum()), on_sample.size)  # fmt: skip
+    fixes = sequence.gps
+    gps = GpsFixes(fixes.t[on_sample], fixes.pos[on_sample], fixes.sigma[on_sample])
+    return dataclasses.replace(sequence, gps=gps)
+
+
+def recorded_phases(sequence: ImuSequence, rate_hz: float) -> int:
+    """How many recorded fixes there are per fused fix at ``rate_hz``: the number of distinct decimations."""
+    if sequence.gps is None or len(sequence.gps.t) < 2:
+        raise ValueError(f"{sequence.name}: PGO needs ground truth or GPS fixes")
+    return max(1, int(round(1.0 / (rate_hz * float(np.median(np.diff(sequence.gps.t)))))))
 
 
 def ate_m(solution: Solution, truth: Gps, fused: Gps | None = None) -> float:
@@ -133,20 +228,25 @@ def run_sequence(
     folder: Path,
     options: PgoOptions | None = None,
     fusion: FusionSettings | None = None,
-    settings=SETTINGS,
+    settings=None,
 ) -> tuple[list[PgoRow], dict]:
-    """Every setting x GPS rate x seed on one sequence; the rows, and one solution per setting at the first rate
-    and seed 0 (for recordings and plots)."""
+    """Every setting (default: ``options.settings``) x GPS rate x seed on one sequence; the rows, and one solution
+    per setting at the first rate and seed 0 (for recordings and plots)."""
     options, fusion = options or PgoOptions(), fusion or FusionSettings()
+    settings = settings or options.settings
+    if options.keyframes == "fixes":
+        sequence = fixes_on_samples(sequence)
     exports = write_exports(sequence, correction, folder, options, settings)
+    recorded = options.gps_source == "recorded" or (options.gps_source == "auto" and sequence.gt is None)
     rows, examples = [], {}
     for setting in settings:
         export = load_export(exports[setting.name])
         for rate in options.gps_hz:
             ates = []
-            for seed in range(options.seeds):
-                fuse, truth = gps_for(sequence, rate, options.gps_sigma_m, seed)
-                graph, values = build_graph(export, fuse, fusion)
+            seeds = min(options.seeds, recorded_phases(sequence, rate)) if recorded else options.seeds
+            for seed in range(seeds):
+                fuse, truth = gps_for(sequence, rate, options.gps_sigma_m, seed, options.gps_source)
+                graph, values = build_graph(export, fuse, fusion, bias=setting.bias)
                 solution = solve(graph, values, export.keyframe_t, fusion)
                 ates.append(ate_m(solution, truth, fuse if options.score_span == "gps" else None))
                 if seed == 0 and rate == options.gps_hz[0]:

@@ -16,7 +16,7 @@ import torch
 
 from fusion.config import PgoConfig
 from fusion.graph import with_marginals
-from fusion.pgo import SETTINGS, PgoRow, run_sequence
+from fusion.pgo import PgoRow, run_sequence
 from learned_imu.checkpoint import model_from_checkpoint
 from learned_imu.config import load_config
 from learned_imu.experiment import correct, load_sequences, train_run, with_epochs
@@ -89,10 +89,9 @@ def record(result: SequenceResult, path: str | Path) -> Path:
             Track("airimu", times, dead_reckoning(seq, c.gyro.numpy(), c.acc.numpy(), times)),
         ]
     fused = []
-    for setting in SETTINGS:
-        if setting.name in result.examples:
-            trajectory = with_marginals(result.examples[setting.name][0])
-            fused.append(Track(setting.name, trajectory.t, trajectory.pos, trajectory.pos_cov))
+    for name, (solution, _) in result.examples.items():
+        trajectory = with_marginals(solution)
+        fused.append(Track(name, trajectory.t, trajectory.pos, trajectory.pos_cov))
     gps = next(iter(result.examples.values()))[1]
     imu = ImuSeries(seq.t, seq.gyro, seq.acc, c.d_gyro.numpy(), c.d_acc.numpy(), c.gyro_cov.numpy(), c.acc_cov.numpy())
     return write_recording(path, tracks, fused, (gps.t, gps.pos), imu, truth)

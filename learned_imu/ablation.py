@@ -259,7 +259,9 @@ def calibration(model: AirImuNet, sequence: ImuSequence, config: ExperimentConfi
     """(3,) mean e^2 / sigma^2 of rotation, position, velocity over the sequence's windows (see module doc); NaN
     where the sequence has no usable window of ``train.window`` samples (gaps in every one)."""
     t = config.train
-    windows = make_windows(sequence, t.window, t.every, None, remove_gravity=t.remove_gravity, allow_empty=True)
+    windows = make_windows(
+        sequence, t.window, t.every, None, remove_gravity=t.remove_gravity, allow_empty=True, context=t.context
+    )
     if windows is None:
         log.warning("%s: no window of %d samples for the NSE", sequence.name, t.window)
         return np.full(3, np.nan)

@@ -96,6 +96,10 @@ class TrainConfig:
     window: int = 1000
     every: int = 50  # supervise every k-th sample of a window (official default 50)
     stride: int = 0  # distance between training window starts; 0 = window (no overlap)
+    # samples of network input before each window, neither integrated nor supervised (windows.py: without them the
+    # network can park a window's predicted variance on its zero-padded first block); at least the network's
+    # receptive field (18 samples, two blocks, for the default CNN) so that no window output sees the padding
+    context: int = 0
     batch_size: int = 16
     epochs: int = 100
     lr: float = 1e-3

@@ -94,7 +94,10 @@ def build_windows(sequences: list[ImuSequence], config: ExperimentConfig, stride
     train = config.train
     parts = []
     for s in sequences:
-        part = make_windows(s, train.window, train.every, stride, remove_gravity=train.remove_gravity, allow_empty=True)
+        part = make_windows(
+            s, train.window, train.every, stride, remove_gravity=train.remove_gravity, allow_empty=True,
+            context=train.context,
+        )  # fmt: skip
         if part is None:
             log.warning("%s: no usable window of %d samples (gaps, invalid truth); skipped", s.name, train.window)
         else:

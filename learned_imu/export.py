@@ -132,9 +132,16 @@ def keyframes_from_spec(sequence: ImuSequence, spec: str) -> np.ndarray:
         raise DataError(path, "time", f"expected one time in seconds per line ({error})") from error
     if times.ndim != 1 or not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0):
         raise DataError(path, "time", "expected finite, strictly increasing times in seconds, one per line")
+    index, on_sample = nearest_samples(sequence, times)
+    if not on_sample.all():
+        raise DataError(path, "time", f"time {times[~on_sample][0]} s lies outside the IMU samples of {sequence.name}")
+    return index
+
+
+def nearest_samples(sequence: ImuSequence, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The index of the sample nearest to each of ``times`` (s, IMU clock), and whether it lies within half a
+    (median) sample period of it (False for a time in a gap or outside the samples)."""
+    times = np.asarray(times, dtype=float)
     index = np.clip(np.searchsorted(sequence.t, times), 1, len(sequence) - 1)
     index = np.where(np.abs(sequence.t[index - 1] - times) <= np.abs(sequence.t[index] - times), index - 1, index)
-    far = np.abs(sequence.t[index] - times) > 0.5 * float(np.median(sequence.dt))
-    if far.any():
-        raise DataError(path, "time", f"time {times[far][0]} s lies outside the IMU samples of {sequence.name}")
-    return index
+    return index, np.abs(sequence.t[index] - times) <= 0.5 * float(np.median(sequence.dt))

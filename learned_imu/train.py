@@ -49,7 +49,7 @@ def window_loss(
 ) -> torch.Tensor:
     """Loss of ``model`` (an ``AirImuNet`` or its DDP wrapper) on ``windows``, a mean over them (see the module
     docstring)."""
-    out = model(windows.gyro, windows.acc, gravity_imu=windows.gravity_imu)
+    out = windows.correct(model)
     densities = (out.gyro_cov, out.acc_cov) if use_covariance else (None, None)
     pre = preintegrate(out.gyro, out.acc, windows.dt, *densities, at=windows.at)
     errors = delta_errors(pre, windows.start, windows.targets, windows.gravity)
@@ -198,7 +198,7 @@ def calibrate_uncertainty(
         for _ in range(steps):
             pick = torch.randint(0, len(windows), (min(batch_size, len(windows)),), generator=generator)
             batch = windows.select(pick)
-            out = model(batch.gyro, batch.acc, gravity_imu=batch.gravity_imu)
+            out = batch.correct(model)
             pre = preintegrate(out.gyro, out.acc, batch.dt, out.gyro_cov, out.acc_cov, at=batch.at)
             errors = delta_errors(pre, batch.start, batch.targets, batch.gravity).detach()
             loss = covariance_nll(errors, pre.cov)
@@ -260,7 +260,7 @@ def noise_residuals(model: AirImuNet, windows: Windows, batch_size: int = 64) ->
     errors, gyro_var, acc_var = [], [], []
     for first in range(0, len(windows), batch_size):
         batch = windows.select(torch.arange(first, min(first + batch_size, len(windows))))
-        out = model(batch.gyro, batch.acc, gravity_imu=batch.gravity_imu)
+        out = batch.correct(model)
         gyro, acc, dt = out.gyro.double(), out.acc.double(), batch.dt.double()
         gyro_cov, acc_cov = out.gyro_cov.double(), out.acc_cov.double()
         from_gyro = preintegrate(gyro, acc, dt, gyro_cov, torch.zeros_like(acc_cov), at=batch.at)

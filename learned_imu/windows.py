@@ -4,15 +4,22 @@ A window of L samples starting at sample s carries the IMU samples s .. s+L-1, t
 the ground-truth states after every ``every``-th sample (AirIMU supervises every k-th; the official default is
 50 of 1000). Only windows whose ground truth is valid throughout and that bridge no time gap are kept
 (``usable_windows``, which ``learned_imu.evaluate`` uses too).
+
+``context`` samples before each window are fed to the network but neither integrated nor supervised
+(``Windows.correct``): without them the first block of every window is computed from the network's zero padding,
+an input it never sees inside a long sequence, and the covariance loss, which only sees the sum over a window,
+lets the network park nearly all of a window's predicted variance there (measured on KITTI: 99.9 % in the first 9
+of 200 samples, so streaming a whole drive gave densities ~1000x too small: BENCHMARKS.md).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 import torch
 
+from learned_imu.model import Correction
 from learned_imu.preintegration import NavState
 from learned_imu.sequence import ImuSequence, gap_indices
 
@@ -22,7 +29,9 @@ class Windows:
     """M windows of L samples. Shapes: ``gyro``/``acc`` (M, L, 3) rad/s and m/s^2, ``dt`` (M, L) s; ``start``
     states (M, ...); ``targets`` states after the supervised samples (M, K, ...); ``gravity`` (3,) world;
     ``gravity_imu`` (M, L, 3) the gravity vector in the IMU frame from ground truth, ``R_gt^T g`` (only when
-    the network's input has gravity removed, ``make_windows(remove_gravity=True)``), else None."""
+    the network's input has gravity removed, ``make_windows(remove_gravity=True)``), else None. ``context``: the
+    first ``context`` samples of ``gyro``, ``acc`` and ``gravity_imu`` (then (M, context + L, 3)) precede the
+    window's start state: network input only."""
 
     gyro: torch.Tensor
     acc: torch.Tensor
@@ -32,9 +41,18 @@ class Windows:
     gravity: torch.Tensor
     at: slice
     gravity_imu: torch.Tensor | None = None
+    context: int = 0
 
     def __len__(self) -> int:
         return self.gyro.shape[0]
+
+    def correct(self, model) -> Correction:
+        """``model``'s output (an ``AirImuNet`` or its DDP wrapper) on the windows' samples, the context cut off:
+        (M, L, 3) fields."""
+        out = model(self.gyro, self.acc, gravity_imu=self.gravity_imu)
+        if not self.context:
+            return out
+        return Correction(*(getattr(out, f.name)[:, self.context :] for f in fields(Correction)))
 
     def to(self, device: str | torch.device) -> Windows:
         """The same windows on ``device`` (every tensor moved; ``self`` when nothing moves)."""
@@ -47,6 +65,7 @@ class Windows:
         return Windows(
             self.gyro.to(device), self.acc.to(device), self.dt.to(device), move(self.start), move(self.targets),
             self.gravity.to(device), self.at, None if self.gravity_imu is None else self.gravity_imu.to(device),
+            self.context,
         )  # fmt: skip
 
     def select(self, index: torch.Tensor) -> Windows:
@@ -55,7 +74,7 @@ class Windows:
         pick = _pick(index)
         return Windows(
             self.gyro[index], self.acc[index], self.dt[index], pick(self.start), pick(self.targets), self.gravity,
-            self.at, None if self.gravity_imu is None else self.gravity_imu[index],
+            self.at, None if self.gravity_imu is None else self.gravity_imu[index], self.context,
         )  # fmt: skip
 
 
@@ -80,24 +99,33 @@ def make_windows(
     dtype=torch.float32,
     remove_gravity: bool = False,
     allow_empty: bool = False,
+    context: int = 0,
 ) -> Windows | None:
     """Cut ``sequence`` into windows of ``length`` samples every ``stride`` samples (default: ``length``).
 
     ``remove_gravity`` adds ``gravity_imu`` (the official code's option: the network sees ``acc + R_gt^T g``).
-    ``allow_empty``: return None instead of raising when no window is usable (gaps or invalid ground truth)."""
+    ``allow_empty``: return None instead of raising when no window is usable (gaps or invalid ground truth).
+    ``context``: samples of network input before each window (module docstring); the first window starts there,
+    and the context too must be free of gaps and invalid ground truth."""
     if sequence.gt is None:
         raise ValueError(f"{sequence.name}: training windows need ground truth")
-    if not 1 <= every <= length or length >= len(sequence):
-        raise ValueError(f"{sequence.name}: need 1 <= every <= length < {len(sequence)}, got {every}, {length}")
+    if context < 0:
+        raise ValueError(f"{sequence.name}: context must be >= 0 samples, got {context}")
+    if not 1 <= every <= length or context + length >= len(sequence):
+        raise ValueError(
+            f"{sequence.name}: need 1 <= every <= length and context + length < {len(sequence)}, "
+            f"got every {every}, length {length}, context {context}"
+        )
     stride = stride or length
     gt = sequence.gt
-    starts = np.arange(0, len(sequence) - length, stride)
-    starts = starts[usable_windows(sequence, starts, length)]
+    starts = np.arange(context, len(sequence) - length, stride)
+    starts = starts[usable_windows(sequence, starts - context, context + length)]
     if len(starts) == 0 and allow_empty:
         return None
     if len(starts) == 0:
         raise ValueError(f"{sequence.name}: no window of {length} samples with valid ground truth")
     take = starts[:, None] + np.arange(length)
+    fed = starts[:, None] + np.arange(-context, length)  # network input: the context, then the window
     at = slice(every - 1, None, every)
     after = (take + 1)[:, at]
 
@@ -105,14 +133,15 @@ def make_windows(
         return torch.as_tensor(x, dtype=dtype)
 
     return Windows(
-        gyro=t(sequence.gyro[take]),
-        acc=t(sequence.acc[take]),
+        gyro=t(sequence.gyro[fed]),
+        acc=t(sequence.acc[fed]),
         dt=t(sequence.dt[take]),
         start=NavState(t(gt.rot[starts]), t(gt.vel[starts]), t(gt.pos[starts])),
         targets=NavState(t(gt.rot[after]), t(gt.vel[after]), t(gt.pos[after])),
         gravity=t(sequence.gravity),
         at=at,
-        gravity_imu=t(np.einsum("mlji,j->mli", gt.rot[take], sequence.gravity)) if remove_gravity else None,
+        gravity_imu=t(np.einsum("mlji,j->mli", gt.rot[fed], sequence.gravity)) if remove_gravity else None,
+        context=context,
     )
 
 
@@ -129,8 +158,8 @@ def concat_windows(parts: list[Windows]) -> Windows:
         raise ValueError("concat_windows: no windows given")
     first = parts[0]
     for other in parts[1:]:
-        if other.gyro.shape[1] != first.gyro.shape[1] or other.at != first.at:
-            raise ValueError("concat_windows: windows differ in length or supervised samples")
+        if other.gyro.shape[1] != first.gyro.shape[1] or other.at != first.at or other.context != first.context:
+            raise ValueError("concat_windows: windows differ in length, context or supervised samples")
         if not torch.equal(other.gravity, first.gravity):
             raise ValueError("concat_windows: sequences have different gravity vectors")
     if len(parts) == 1:
@@ -146,5 +175,5 @@ def concat_windows(parts: list[Windows]) -> Windows:
     gravity_imu = None if first.gravity_imu is None else cat("gravity_imu")
     return Windows(
         cat("gyro"), cat("acc"), cat("dt"), cat_state("start"), cat_state("targets"), first.gravity, first.at,
-        gravity_imu,
+        gravity_imu, first.context,
     )  # fmt: skip

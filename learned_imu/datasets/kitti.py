@@ -67,7 +67,7 @@ def read_kitti(
     rows = np.arange(raw.shape[0])[1 if skip_first else 0 :]
     keep = rows[check_timestamps(raw[rows, 0], imu_path, "Time", on_duplicate=on_duplicate, line_of=table.line_of)]
     t, acc, gyro = raw[keep, 0], raw[keep, 2:5], raw[keep, 5:8]
-    gps = _read_gps(_locate(path, gps_file), gps_sigma) if gps_file is not None else None
+    gps = read_gps(_locate(path, gps_file), gps_sigma) if gps_file is not None else None
     return build_sequence(
         "kitti_gtsam",
         imu_path,
@@ -90,7 +90,8 @@ def _locate(path: str | Path | None, name: str) -> Path:
     return Path(gtsam.findExampleDataFile(name))
 
 
-def _read_gps(path: Path, sigma: float) -> GpsFixes:
+def read_gps(path: Path, sigma: float) -> GpsFixes:
+    """Fixes of a ``Time,X,Y,Z`` file (GTSAM's ``KittiGps_converted.txt``) with ``sigma`` m per axis."""
     if not sigma > 0:
         raise DataError(path, "gps_sigma", f"must be positive, got {sigma}")
     table = read_table(path, delimiter=",", min_columns=len(GPS_COLUMNS), field="gps")

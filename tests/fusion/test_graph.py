@@ -111,3 +111,41 @@ def test_position_at_interpolates_between_keyframes():
     np.testing.assert_allclose(traj.position_at(query), expected, atol=1e-12)
     with pytest.raises(ValueError, match="position_at"):
         traj.position_at([5.5])
+
+
+def test_bias_states_match_a_graph_of_gtsams_own_preintegration(tmp_path):
+    """GTSAM's IMUKittiExampleGPS.py graph (a bias per keyframe, its random walk and prior) built from an export:
+    the same solution as the graph of GTSAM's own ``PreintegratedImuMeasurements``, and the bias is found."""
+    import gtsam
+
+    from factors import learned_pim
+    from fusion.graph import B, BiasStates, V, X
+
+    biased = ImuErrorModel(1e-4, 1e-3, 0.0, 0.0, 0.02, 0.1)  # turn-on biases: 0.02 rad/s, 0.1 m/s^2 (one sigma)
+    seq = simulate("car", duration_s=30.0, error_model=biased, seed=4)
+    index = keyframes_every(seq, 0.5)
+    export = load_export(export_preintegration(tmp_path / "raw.npz", seq, index, 1e-4**2, 1e-3**2))
+    fuse, truth = gps_for(seq, 1.0, 0.1, seed=0)
+    bias = BiasStates(acc_walk_sigma=1e-4, gyro_walk_sigma=1e-5, acc_prior_sigma=1.0, gyro_prior_sigma=0.1)
+    settings = FusionSettings(relative_error_tol=1e-12, absolute_error_tol=1e-12)
+    graph, values = build_graph(export, fuse, settings, bias=bias)
+    ours = solve(graph, values, export.keyframe_t, settings)
+    without = solve(*build_graph(export, fuse, settings), export.keyframe_t, settings)
+
+    reference = gtsam.NonlinearFactorGraph()  # GTSAM's preintegration in place of the export's IMU factors
+    intervals = len(index) - 1
+    for k in range(intervals):
+        take = slice(index[k], index[k + 1])
+        pim = learned_pim(seq.gyro[take], seq.acc[take], seq.dt[take], 1e-4**2, 1e-3**2, seq.gravity)
+        reference.add(gtsam.ImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), pim))
+    for i in range(intervals, graph.size()):  # GPS factors, priors, bias walk and prior, in build_graph's order
+        reference.add(graph.at(i))
+    theirs = solve(reference, values, export.keyframe_t, settings)
+    np.testing.assert_allclose(ours.trajectory.pos, theirs.trajectory.pos, atol=1e-3)
+    found = [ours.values.atConstantBias(B(k)) for k in (0, intervals)]
+    expected = [theirs.values.atConstantBias(B(k)) for k in (0, intervals)]
+    for a, b in zip(found, expected, strict=True):
+        np.testing.assert_allclose(a.vector(), b.vector(), atol=1e-4)
+    assert ate_m(ours, truth) < 0.5 * ate_m(without, truth)  # estimating the bias pays on a biased IMU
+    with pytest.raises(ValueError, match="acc_walk_sigma"):
+        BiasStates(0.0, 1e-5, 1.0, 0.1)

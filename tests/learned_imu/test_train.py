@@ -27,6 +27,32 @@ def test_windows_start_on_ground_truth_and_supervise_every_kth_sample():
         make_windows(seq, length=200, every=300)
 
 
+def test_context_windows_feed_history_to_the_network_but_integrate_only_the_window():
+    seq = simulate("drone", duration_s=10.0, seed=0)
+    plain = make_windows(seq, length=180, every=45, stride=180, dtype=torch.float64)
+    windows = make_windows(seq, length=180, every=45, stride=180, dtype=torch.float64, context=18)
+    assert windows.gyro.shape[1:] == (198, 3) and windows.dt.shape[1:] == (180,)
+    assert torch.equal(windows.start.pos[0], torch.as_tensor(seq.gt.pos[18]))  # the first window starts after it
+    assert torch.equal(windows.gyro[1, 18:], torch.as_tensor(seq.gyro[198:378]))
+    assert torch.equal(windows.gyro[1, :18], torch.as_tensor(seq.gyro[180:198]))
+    # with the receptive field as context (18 samples, block-aligned) a window's output is the streamed output of the
+    # whole sequence at those samples: nothing in it comes from the network's zero padding
+    torch.manual_seed(0)
+    model = AirImuNet(conv_channels=(8, 16), use_gru=False).double().eval()
+    with torch.no_grad():
+        model.gyro_cov_decoder[-1].weight.normal_()  # a noise head that depends on its input
+        out = windows.correct(model)
+        whole = correct_sequence(model, torch.as_tensor(seq.gyro), torch.as_tensor(seq.acc))
+    assert out.gyro_cov.shape == (len(windows), 180, 3)
+    torch.testing.assert_close(out.gyro_cov[1], whole.gyro_cov[198:378])
+    torch.testing.assert_close(out.gyro[1], whole.gyro[198:378])
+    with torch.no_grad():  # without the context the first block differs
+        first = plain.correct(model).gyro_cov[1, :9]
+    assert not torch.allclose(first, whole.gyro_cov[180:189], rtol=1e-3, atol=0.0)
+    with pytest.raises(ValueError, match="context"):
+        make_windows(seq, length=200, every=50, context=-1)
+
+
 def stretch(sim, first: int, last: int) -> ImuSequence:
     """Samples [first, last) of a simulated sequence, as a sequence of its own."""
     seq, gt = sim.sequence, sim.sequence.gt

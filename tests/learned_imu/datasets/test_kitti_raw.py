@@ -115,3 +115,29 @@ def test_malformed_official_layout_names_the_file_and_line(tmp_path, shared_data
         read_sequence("kitti_raw", folder)
     with pytest.raises(DataError, match="no KITTI oxts layout here"):
         read_sequence("kitti_raw", tmp_path)
+
+
+def test_gtsam_gps_fixes_map_into_the_drive_ground_truth_frame(shared_data, tmp_path):
+    path = shared_data / "kitti_raw" / "2011_10_03_drive_0027.csv"  # the drive GTSAM ships
+    gps_file = "../kitti_gtsam/KittiGps_converted.txt"  # relative to the drive's folder
+    seq = read_sequence("kitti_raw", path, **REPAIR, gps_file=gps_file)
+    fixes = seq.gps
+    assert len(fixes.t) == 470 and np.allclose(fixes.sigma, np.sqrt(0.07))  # GTSAM's example noise
+    truth = np.column_stack([np.interp(fixes.t, seq.t, seq.gt.pos[:, i]) for i in range(3)])
+    rms = np.sqrt(np.mean((fixes.pos - truth) ** 2, axis=0))
+    assert np.all(rms < 0.02), rms  # a per-axis scale and offset (README caveat 6) leave 8 / 7 / 0.6 mm
+    as_is = read_sequence("kitti_raw", path, **REPAIR, gps_file=gps_file, gps_frame="as_is").gps
+    assert np.all(np.abs(np.mean(as_is.pos - truth, axis=0)[:2]) > 5.0)  # GTSAM's frame: origin 6.8 m / 11.9 m off
+
+    raw = np.loadtxt(shared_data / "kitti_gtsam" / "KittiGps_converted.txt", delimiter=",", skiprows=1)
+    swapped = tmp_path / "swapped.txt"  # X and Y exchanged: no scale and offset maps them onto this drive
+    np.savetxt(swapped, raw[:, [0, 2, 1, 3]], delimiter=",", header="Time,X,Y,Z", comments="")
+    with pytest.raises(DataError, match=r"swapped.txt: field 'X'.*do not belong to this drive"):
+        read_sequence("kitti_raw", path, **REPAIR, gps_file=swapped)
+    other = shared_data / "kitti_raw" / "2011_09_30_drive_0016.csv"  # another day: no fix in its time span
+    with pytest.raises(DataError, match="0 fixes lie within the drive's time span"):
+        read_sequence("kitti_raw", other, gps_file=path.parent / gps_file)
+    with pytest.raises(DataError, match="needs it"):
+        read_sequence("kitti_raw", path, **REPAIR, ground_truth=False, gps_file=gps_file)
+    with pytest.raises(ValueError, match="gps_frame"):
+        read_sequence("kitti_raw", path, **REPAIR, gps_file=gps_file, gps_frame="enu")

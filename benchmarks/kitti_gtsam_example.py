@@ -1,8 +1,9 @@
 """GTSAM's ``IMUKittiExampleGPS.py`` as shipped (its IMU and GPS files, its ISAM2 loop, keyframes at every 1 Hz fix,
-every ``gps_skip``-th fix fused; the phases whose ISAM2 update fails are reported as failed), scored as ``configs/pgo_kitti.yaml`` scores its rows: ATE (RMSE, no alignment)
-against the OXTS ground truth of ``kitti_raw/2011_10_03_drive_0027.csv`` at every raw sample between the first and
-the last fused fix. The reference for the GTSAM row of ``airimu ablate-pgo --config configs/pgo_kitti.yaml``, which
-keeps the example's noise, bias model and GPS noise but shares the other rows' graph, samples and solver.
+every ``gps_skip``-th fix fused; phases whose ISAM2 update fails are reported as failed), scored as
+``configs/pgo_kitti.yaml`` scores its rows: ATE (RMSE, no alignment) against the OXTS ground truth of
+``kitti_raw/2011_10_03_drive_0027.csv`` at every raw sample between the first and the last fused fix. The reference
+for the GTSAM row of ``airimu ablate-pgo --config configs/pgo_kitti.yaml``, which keeps the example's noise, bias
+model and GPS noise but shares the other rows' graph, samples and solver.
 
     python benchmarks/kitti_gtsam_example.py [--data ../shared/data] [--gps-skip 10] [--factorization QR]
 

@@ -4,7 +4,7 @@ from factors.checks import GraphError, check_anchored, check_values, solve_or_ex
 from factors.export_file import Export, ExportError, from_export, load_export
 from factors.gps import GpsFactor, gps_noise
 from factors.imu import LearnedImuFactor
-from factors.learned_pim import learned_pim
+from factors.learned_pim import learned_combined_pim, learned_pim
 
 __all__ = [
     "Export",
@@ -17,6 +17,7 @@ __all__ = [
     "solve_or_explain",
     "from_export",
     "gps_noise",
+    "learned_combined_pim",
     "learned_pim",
     "load_export",
 ]

@@ -95,28 +95,60 @@ def load_export(path: str | Path) -> Export:
 
 
 BACKENDS = ("custom", "gtsam")
+FACTORS = ("imu", "combined")
 
 
 def from_export(
-    path: str | Path,
+    export: Export | str | Path,
     pose_key=gtsam.symbol_shorthand.X,
     vel_key=gtsam.symbol_shorthand.V,
-    bias_key=None,
-    backend: str = "custom",
+    bias_key=gtsam.symbol_shorthand.B,
+    backend: str = "gtsam",
+    *,
+    factor: str = "imu",
+    params: gtsam.PreintegrationParams | None = None,
+    bias=None,
 ) -> tuple[list[gtsam.NonlinearFactor], np.ndarray]:
-    """IMU factors between consecutive keyframes of an export, and the keyframe times (K,), s.
+    """IMU factors between consecutive keyframes of an export (a path or an ``Export``), and the keyframe times
+    (K,), s.
 
-    Keys are ``pose_key(k)`` and ``vel_key(k)`` for keyframe k (``X(k)``, ``V(k)`` by default); with ``bias_key``
-    (e.g. ``gtsam.symbol_shorthand.B``, or ``lambda k: B(0)`` for one shared bias) each factor also corrects for
-    the bias ``bias_key(k)``. ``backend="custom"`` gives ``LearnedImuFactor`` (Python); ``"gtsam"`` gives the
-    built-in C++ ``gtsam.ImuFactor`` carrying the same measurement (``pim_from_deltas``): identical errors and
-    Jacobians, ~10x faster to optimise, and it always needs ``bias_key``.
+    Keys: ``pose_key(k)``, ``vel_key(k)`` and ``bias_key(k)`` for keyframe k (``X(k)``, ``V(k)``, ``B(k)`` by
+    default; pass e.g. ``lambda k: X(k + 1)`` to number from 1 as GTSAM's KITTI example does, or ``lambda k: B(0)``
+    for one shared bias). The export's samples are already corrected, so its deltas are preintegrated at zero bias
+    and each factor corrects for its bias key to first order through the export's bias Jacobians.
+
+    - ``backend="gtsam"`` (default): GTSAM's C++ ``gtsam.ImuFactor`` carrying the export's measurement
+      (``pim_from_deltas``); ``"custom"``: ``LearnedImuFactor`` (Python; ``bias_key=None`` drops the bias), the same
+      errors and Jacobians, ~10-30x slower to optimise.
+    - ``factor="combined"``: ``gtsam.CombinedImuFactor`` (X(k), V(k), X(k+1), V(k+1), B(k), B(k+1)) from the
+      export's per-sample corrected samples and learned noise through GTSAM's own preintegration
+      (``learned_combined_pim``); needs ``params`` (a ``gtsam.PreintegrationCombinedParams``: gravity, the bias
+      random walk, ``bodyPSensor``, ...).
+    - ``params`` (a ``gtsam.PreintegrationParams``) with ``factor="imu"``: each interval is preintegrated again from
+      the samples by GTSAM (``learned_pim``) so that everything in the params is honoured.
+    - ``bias``: a ``gtsam.imuBias.ConstantBias``, or a function of k giving one, to preintegrate each interval around
+      (GTSAM's ``biasHat``: re-linearisation, as ``IMUKittiExampleGPS.py`` re-preintegrates at its current bias
+      estimate); GTSAM's own preintegration from the samples, with ``params`` or the export's gravity.
+
+    The export's gravity must equal the params' (an error names both): the deltas were integrated with it.
+    Whatever a route cannot honour raises: ``backend="custom"`` takes neither ``params`` nor ``bias``.
     """
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; known: {', '.join(BACKENDS)}")
+    if factor not in FACTORS:
+        raise ValueError(f"unknown factor {factor!r}; known: {', '.join(FACTORS)}")
     if backend == "gtsam" and bias_key is None:
         raise ValueError("backend='gtsam' builds gtsam.ImuFactor, which always has a bias key: pass bias_key")
-    export = load_export(path)
+    export = export if isinstance(export, Export) else load_export(export)
+    if backend == "custom" and (params is not None or bias is not None or factor != "imu"):
+        raise ValueError("backend='custom' (LearnedImuFactor) uses the export's deltas as they are: params=, bias= "
+                         "and factor='combined' need backend='gtsam'")  # fmt: skip
+    if factor == "combined" and not isinstance(params, gtsam.PreintegrationCombinedParams):
+        raise ValueError("factor='combined' needs params=gtsam.PreintegrationCombinedParams(...): the bias random walk")
+    if params is not None:
+        _check_gravity(export, params)
+    if params is not None or bias is not None or factor == "combined":
+        return _from_samples(export, pose_key, vel_key, bias_key, factor, params, bias), export.keyframe_t
     factors = []
     for k in range(len(export.delta_dt)):
         if backend == "gtsam":
@@ -139,3 +171,35 @@ def from_export(
         except ValueError as err:
             raise ExportError(f"{export.path}: interval {k}: {err}") from None
     return factors, export.keyframe_t
+
+
+def _check_gravity(export: Export, params) -> None:
+    gravity = np.asarray(params.n_gravity, dtype=float)
+    if not np.allclose(gravity, export.gravity, rtol=0, atol=1e-9):
+        raise ValueError(
+            f"{export.path}: the export was integrated with gravity {export.gravity.tolist()} m/s^2, the params hold "
+            f"{gravity.tolist()}: build the params with the export's gravity"
+        )
+
+
+def _from_samples(export: Export, pose_key, vel_key, bias_key, factor: str, params, bias) -> list:
+    """Factors from the export's per-sample data through GTSAM's own preintegration (``factors.learned_pim``)."""
+    from factors.learned_pim import learned_combined_pim, learned_pim
+
+    a = export.arrays
+    dt = np.diff(a["t"])
+    index = export.keyframe_index
+    out = []
+    for k in range(len(index) - 1):
+        take = slice(int(index[k]), int(index[k + 1]))
+        around = bias(k) if callable(bias) else bias
+        samples = (a["gyro"][take], a["acc"][take], dt[take], a["gyro_cov"][take], a["acc_cov"][take])
+        keys = (pose_key(k), vel_key(k), pose_key(k + 1), vel_key(k + 1))
+        if factor == "combined":
+            pim = learned_combined_pim(*samples, params=params, bias=around)
+            out.append(gtsam.CombinedImuFactor(*keys, bias_key(k), bias_key(k + 1), pim))
+        else:
+            gravity = None if params is not None else export.gravity
+            pim = learned_pim(*samples, gravity, bias=around, params=params)
+            out.append(gtsam.ImuFactor(*keys, bias_key(k), pim))
+    return out

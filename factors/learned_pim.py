@@ -1,13 +1,21 @@
 """GTSAM's own preintegration fed with the learned model: corrected samples and their per-sample noise.
 
-``gtsam.PreintegratedImuMeasurements`` keeps a shared pointer to its ``PreintegrationParams``, so setting the
-gyroscope and accelerometer covariance before each ``integrateMeasurement`` applies that sample's learned noise.
-The result drives ``gtsam.ImuFactor`` (and, from ``PreintegratedCombinedMeasurements``, ``CombinedImuFactor``)
-at C++ speed with the learned covariance.
+``gtsam.PreintegratedImuMeasurements`` (and ``PreintegratedCombinedMeasurements``) keep a shared pointer to their
+params, so setting the gyroscope and accelerometer covariance before each ``integrateMeasurement`` applies that
+sample's learned noise. The result drives ``gtsam.ImuFactor`` (``learned_pim``) or ``gtsam.CombinedImuFactor``
+with bias states ``B(i)`` (``learned_combined_pim``) at C++ speed with the learned covariance; everything else is
+GTSAM's integration, so whatever the given ``params`` hold (gravity, ``bodyPSensor``, ``omegaCoriolis``, the
+integration covariance, the combined params' bias random walk) is honoured as GTSAM honours it. The caller's params
+are copied, never changed.
 
 Conventions: gyro rad/s and acc m/s^2 (specific force) in the IMU frame; noise given as continuous-time
-densities (rad^2/s, m^2/s^3) exactly as ``PreintegrationParams.setGyroscopeCovariance`` takes them; gravity as
-the magnitude for ``MakeSharedU`` (z-up world, gravity along -z).
+``*_cov`` densities (sigma^2: rad^2/s, m^2/s^3) exactly as ``PreintegrationParams.setGyroscopeCovariance`` takes
+them. Gravity comes from ``params`` or is given explicitly (``gravity_m_s2``: the magnitude for ``MakeSharedU``,
+z-up world, or the world-frame vector); there is no default, so that a graph built with 9.8 does not get 9.81.
+
+``biasHat``: preintegrating around a bias estimate (``bias=``) is GTSAM's re-linearisation: rebuild each interval's
+preintegration at the solver's current bias, as ``IMUKittiExampleGPS.py`` does; the factor then corrects only the
+(small) remaining difference to first order.
 """
 
 from __future__ import annotations
@@ -20,23 +28,91 @@ def learned_pim(
     gyro,
     acc,
     dt,
-    gyro_density,
-    acc_density,
-    gravity_m_s2=9.81,
-    integration_density: float = 0.0,
+    gyro_cov,
+    acc_cov,
+    gravity_m_s2=None,
+    integration_cov: float | None = None,
     bias: gtsam.imuBias.ConstantBias | None = None,
+    *,
+    params: gtsam.PreintegrationParams | None = None,
 ) -> gtsam.PreintegratedImuMeasurements:
     """Preintegrate corrected samples with per-sample learned noise into GTSAM's tangent preintegration.
 
     Args:
         gyro, acc: (N, 3) corrected samples, rad/s and m/s^2, IMU frame.
         dt: (N,) or float, seconds per sample.
-        gyro_density, acc_density: (N, 3) per-sample diagonal noise densities (or (3,) / float for constant).
-        gravity_m_s2: gravity magnitude for ``PreintegrationParams.MakeSharedU`` (z-up world), or the (3,)
-            world-frame gravity vector, m/s^2.
-        integration_density: GTSAM's integration covariance (m^2/s), 0 to match ``learned_imu.preintegrate``.
+        gyro_cov, acc_cov: (N, 3) per-sample diagonal noise densities, sigma^2 (or (3,) / float for constant).
+        gravity_m_s2: gravity magnitude for ``PreintegrationParams.MakeSharedU`` (z-up world) or the (3,) world-frame
+            vector, m/s^2; give this or ``params``.
+        integration_cov: GTSAM's integration covariance (m^2/s); default: ``params``' own, else 0 (which matches
+            ``learned_imu.preintegrate``).
         bias: the bias estimate to preintegrate around (zero by default; the learned samples are corrected).
+        params: a ``gtsam.PreintegrationParams`` (copied) for gravity, ``bodyPSensor``, ``omegaCoriolis`` and the
+            integration covariance; its gyroscope and accelerometer covariances are replaced by the learned ones.
     """
+    gyro, acc, dt, gyro_cov, acc_cov = _checked(gyro, acc, dt, gyro_cov, acc_cov)
+    params = _params(gtsam.PreintegrationParams, params, gravity_m_s2, integration_cov)
+    pim = gtsam.PreintegratedImuMeasurements(params, bias or gtsam.imuBias.ConstantBias())
+    _integrate(pim, params, gyro, acc, dt, gyro_cov, acc_cov)
+    return pim
+
+
+def learned_combined_pim(
+    gyro,
+    acc,
+    dt,
+    gyro_cov,
+    acc_cov,
+    params: gtsam.PreintegrationCombinedParams,
+    bias: gtsam.imuBias.ConstantBias | None = None,
+) -> gtsam.PreintegratedCombinedMeasurements:
+    """As ``learned_pim``, into GTSAM's ``PreintegratedCombinedMeasurements`` for ``gtsam.CombinedImuFactor``
+    (keys X(i), V(i), X(j), V(j), B(i), B(j)); the bias random walk (``setBiasAccCovariance``,
+    ``setBiasOmegaCovariance``, continuous-time sigma^2) and everything else come from ``params`` (copied)."""
+    if not isinstance(params, gtsam.PreintegrationCombinedParams):
+        raise TypeError(
+            "learned_combined_pim: params must be a gtsam.PreintegrationCombinedParams (it holds the bias random "
+            f"walk), got {type(params).__name__}"
+        )
+    gyro, acc, dt, gyro_cov, acc_cov = _checked(gyro, acc, dt, gyro_cov, acc_cov)
+    params = _params(gtsam.PreintegrationCombinedParams, params, None, None)
+    pim = gtsam.PreintegratedCombinedMeasurements(params, bias or gtsam.imuBias.ConstantBias())
+    _integrate(pim, params, gyro, acc, dt, gyro_cov, acc_cov)
+    return pim
+
+
+def _integrate(pim, params, gyro, acc, dt, gyro_cov, acc_cov) -> None:
+    for k in range(len(gyro)):
+        params.setGyroscopeCovariance(np.diag(gyro_cov[k]))
+        params.setAccelerometerCovariance(np.diag(acc_cov[k]))
+        pim.integrateMeasurement(acc[k], gyro[k], dt[k])
+
+
+def _params(kind, given, gravity_m_s2, integration_cov):
+    """A private params object of ``kind``: a copy of ``given``, or new for ``gravity_m_s2``."""
+    if given is None and gravity_m_s2 is None:
+        raise ValueError("learned_pim: give params= (a gtsam.PreintegrationParams) or gravity_m_s2=: no default")
+    if given is not None and gravity_m_s2 is not None:
+        raise ValueError("learned_pim: give either params= or gravity_m_s2=, not both (params hold the gravity)")
+    if given is not None:
+        if not isinstance(given, gtsam.PreintegrationParams):
+            raise TypeError(f"learned_pim: params must be a gtsam.PreintegrationParams, got {type(given).__name__}")
+        params = kind(np.zeros(3))
+        params.deserialize(given.serialize())  # a copy: the per-sample covariances must not reach the caller's
+    elif np.ndim(gravity_m_s2) == 0:
+        params = kind.MakeSharedU(float(gravity_m_s2))
+    else:
+        params = kind(np.asarray(gravity_m_s2, dtype=float).reshape(3))
+    if integration_cov is not None:
+        if not (np.isfinite(integration_cov) and integration_cov >= 0):
+            raise ValueError(f"learned_pim: integration_cov must be finite and >= 0, got {integration_cov!r}")
+        params.setIntegrationCovariance(np.eye(3) * integration_cov)
+    elif given is None:
+        params.setIntegrationCovariance(np.zeros((3, 3)))
+    return params
+
+
+def _checked(gyro, acc, dt, gyro_cov, acc_cov):
     gyro = _samples("gyro", gyro)
     acc = _samples("acc", acc)
     n = len(gyro)
@@ -45,20 +121,7 @@ def learned_pim(
     dt = np.broadcast_to(np.asarray(dt, dtype=float), (n,))
     if not np.all(np.isfinite(dt)) or np.any(dt <= 0):
         raise ValueError("learned_pim: dt must be positive and finite for every sample")
-    gyro_density = _densities("gyro_density", gyro_density, n)
-    acc_density = _densities("acc_density", acc_density, n)
-
-    if np.ndim(gravity_m_s2) == 0:
-        params = gtsam.PreintegrationParams.MakeSharedU(float(gravity_m_s2))
-    else:
-        params = gtsam.PreintegrationParams(np.asarray(gravity_m_s2, dtype=float).reshape(3))
-    params.setIntegrationCovariance(np.eye(3) * integration_density)
-    pim = gtsam.PreintegratedImuMeasurements(params, bias or gtsam.imuBias.ConstantBias())
-    for k in range(n):
-        params.setGyroscopeCovariance(np.diag(gyro_density[k]))
-        params.setAccelerometerCovariance(np.diag(acc_density[k]))
-        pim.integrateMeasurement(acc[k], gyro[k], dt[k])
-    return pim
+    return gyro, acc, dt, _densities("gyro_cov", gyro_cov, n), _densities("acc_cov", acc_cov, n)
 
 
 def _samples(name: str, value) -> np.ndarray:
@@ -76,5 +139,5 @@ def _densities(name: str, value, n: int) -> np.ndarray:
     except ValueError:
         raise ValueError(f"learned_pim: {name} must be a float, (3,) or (N, 3); got {np.shape(value)}") from None
     if not np.all(np.isfinite(out)) or np.any(out < 0):
-        raise ValueError(f"learned_pim: {name} must be finite and non-negative (a noise density)")
+        raise ValueError(f"learned_pim: {name} must be finite and non-negative (a noise density, sigma^2)")
     return out

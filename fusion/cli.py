@@ -27,7 +27,7 @@ def demo(
     from fusion.config import load_pgo_config
 
     folder = Path(out)
-    config = load_pgo_config(Path(__file__).resolve().parent.parent / "configs" / "pgo_demo.yaml")
+    config = load_pgo_config("pgo_demo.yaml")  # the shipped config (package airimu_configs)
     config = dataclasses.replace(
         config, run=str(folder / "run"), options=dataclasses.replace(config.options, seeds=seeds)
     )

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from fusion.graph import FusionSettings
 from fusion.pgo import PgoOptions
-from learned_imu.config import SequenceConfig, from_dict, read_yaml
+from learned_imu.config import SequenceConfig, config_path, from_dict, read_yaml
 from learned_imu.errors import ConfigError
 
 
@@ -30,8 +30,9 @@ class PgoConfig:
 
 
 def load_pgo_config(path: str | Path) -> PgoConfig:
-    """Read ``path`` (YAML); ``experiment`` is made absolute relative to the file's folder."""
-    path = Path(path)
+    """Read ``path`` (YAML; a shipped config by name too, ``learned_imu.config.config_path``); ``experiment`` is made
+    absolute relative to the file's folder."""
+    path = config_path(path)
     config = from_dict(PgoConfig, read_yaml(path), source=str(path))
     experiment = Path(config.experiment)
     if not experiment.is_absolute():

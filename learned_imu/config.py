@@ -158,9 +158,24 @@ def resolve_device(device: str) -> str:
     return device
 
 
-def load_config(path: str | Path, data_root: str | Path | None = None) -> ExperimentConfig:
-    """Read ``path`` (YAML) into an ``ExperimentConfig``; ``data.root`` is made absolute (``data_root`` wins)."""
+def config_path(path: str | Path) -> Path:
+    """``path``, or, where no such file exists and it names a shipped config (``euroc.yaml`` or
+    ``configs/euroc.yaml``), the installed copy of that config (package ``airimu_configs``)."""
     path = Path(path)
+    if path.exists() or path.parent not in (Path("."), Path("configs")):
+        return path
+    try:
+        import airimu_configs
+    except ImportError:  # a source tree that is not installed
+        return path
+    shipped = airimu_configs.FOLDER / path.name
+    return shipped if shipped.is_file() else path
+
+
+def load_config(path: str | Path, data_root: str | Path | None = None) -> ExperimentConfig:
+    """Read ``path`` (YAML; a shipped config by name too, ``config_path``) into an ``ExperimentConfig``;
+    ``data.root`` is made absolute (``data_root`` wins)."""
+    path = config_path(path)
     config = from_dict(ExperimentConfig, read_yaml(path), source=str(path))
     root = Path(data_root) if data_root is not None else Path(config.data.root)
     if not root.is_absolute():

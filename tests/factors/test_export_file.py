@@ -42,7 +42,7 @@ def test_irregular_keyframes_equal_integrating_each_interval(sequence, tmp_path)
 
 
 def test_factors_from_an_export_solve_the_trajectory(sequence, exported):
-    factors, keyframe_t = from_export(exported)
+    factors, keyframe_t = from_export(exported, backend="custom", bias_key=None)
     export = load_export(exported)
     assert len(factors) == len(keyframe_t) - 1 == 59
     graph = gtsam.NonlinearFactorGraph()
@@ -99,7 +99,7 @@ def test_bad_exports_are_named(exported, tmp_path):
         cov = data["delta_cov"].copy()
     cov[7] = -np.eye(9)
     with pytest.raises(ExportError, match="interval 7: .*positive definite"):
-        from_export(_rewrite(exported, tmp_path / "cov.npz", delta_cov=cov))
+        from_export(_rewrite(exported, tmp_path / "cov.npz", delta_cov=cov), backend="custom")
 
 
 def test_corrupt_or_pickled_files_are_refused(exported, tmp_path):

@@ -23,7 +23,7 @@ def samples(n: int, max_rate: float, seed: int):
 
 def test_covariance_matches_learned_imu_preintegrate_with_per_sample_noise():
     gyro, acc, gyro_density, acc_density = samples(400, max_rate=1.0, seed=0)
-    pim = learned_pim(gyro, acc, DT, gyro_density, acc_density)
+    pim = learned_pim(gyro, acc, DT, gyro_density, acc_density, 9.81)
     ours = preintegrate(
         *(torch.tensor(x) for x in (gyro, acc)), DT, torch.tensor(gyro_density), torch.tensor(acc_density), at=-1
     )
@@ -37,9 +37,9 @@ def test_covariance_matches_learned_imu_preintegrate_with_per_sample_noise():
 def test_per_sample_noise_is_applied_sample_by_sample():
     gyro, acc, gyro_density, acc_density = samples(200, max_rate=0.5, seed=1)
     mean_g, mean_a = gyro_density.mean(axis=0), acc_density.mean(axis=0)
-    varying = learned_pim(gyro, acc, DT, gyro_density, acc_density).preintMeasCov()
-    constant = learned_pim(gyro, acc, DT, mean_g, mean_a).preintMeasCov()
-    doubled = learned_pim(gyro, acc, DT, 2 * gyro_density, 2 * acc_density).preintMeasCov()
+    varying = learned_pim(gyro, acc, DT, gyro_density, acc_density, 9.81).preintMeasCov()
+    constant = learned_pim(gyro, acc, DT, mean_g, mean_a, 9.81).preintMeasCov()
+    doubled = learned_pim(gyro, acc, DT, 2 * gyro_density, 2 * acc_density, 9.81).preintMeasCov()
     np.testing.assert_allclose(doubled, 2 * varying, rtol=1e-9, atol=1e-18)  # covariance is linear in the noise
     assert np.abs(varying - constant).max() > 1e-3 * np.abs(varying).max()  # and per-sample noise matters
 
@@ -57,10 +57,67 @@ def test_bad_input_raises(change, message):
     gyro, acc, gyro_density, acc_density = samples(10, max_rate=0.5, seed=2)
     g, a, d = change(gyro, acc, DT)
     with pytest.raises(ValueError, match=message):
-        learned_pim(g, a, d, gyro_density, acc_density)
+        learned_pim(g, a, d, gyro_density, acc_density, 9.81)
 
 
 def test_negative_density_raises():
     gyro, acc, gyro_density, acc_density = samples(10, max_rate=0.5, seed=3)
     with pytest.raises(ValueError, match="non-negative"):
-        learned_pim(gyro, acc, DT, -gyro_density, acc_density)
+        learned_pim(gyro, acc, DT, -gyro_density, acc_density, 9.81)
+
+
+def gtsam_own(pim, gyro, acc, dt):
+    """GTSAM's own preintegration of the samples into ``pim`` (constant noise from its params)."""
+    for k in range(len(gyro)):
+        pim.integrateMeasurement(acc[k], gyro[k], dt)
+    return pim
+
+
+def test_combined_equals_gtsams_own_preintegration_at_constant_noise():
+    import gtsam
+
+    from factors import learned_combined_pim
+
+    gyro, acc, _, _ = samples(300, max_rate=1.0, seed=4)
+    params = gtsam.PreintegrationCombinedParams.MakeSharedU(9.8)
+    params.setGyroscopeCovariance(np.eye(3) * 1.7e-4**2)
+    params.setAccelerometerCovariance(np.eye(3) * 2e-3**2)
+    params.setIntegrationCovariance(np.eye(3) * 1e-8)
+    params.setBiasAccCovariance(np.eye(3) * 4e-5**2)
+    params.setBiasOmegaCovariance(np.eye(3) * 2e-6**2)
+    params.setBodyPSensor(gtsam.Pose3(gtsam.Rot3.Ypr(0.3, -0.1, 0.2), np.array([0.1, -0.05, 0.2])))
+    params.setOmegaCoriolis(np.array([0.0, 4e-5, 6e-5]))
+    bias = gtsam.imuBias.ConstantBias(np.array([0.05, -0.02, 0.1]), np.array([0.2, -0.1, 0.3]))  # 0.1-0.3 rad/s
+    before = params.serialize()
+    ours = learned_combined_pim(gyro, acc, DT, 1.7e-4**2, 2e-3**2, params=params, bias=bias)
+    theirs = gtsam_own(gtsam.PreintegratedCombinedMeasurements(params, bias), gyro, acc, DT)
+    assert params.serialize() == before  # the caller's params are not changed by the per-sample noise
+    np.testing.assert_allclose(ours.preintMeasCov(), theirs.preintMeasCov(), rtol=1e-12, atol=1e-30)
+    np.testing.assert_allclose(ours.deltaRij().matrix(), theirs.deltaRij().matrix(), atol=1e-14)
+    np.testing.assert_allclose(ours.deltaPij(), theirs.deltaPij(), atol=1e-13)
+    np.testing.assert_allclose(ours.deltaVij(), theirs.deltaVij(), atol=1e-13)
+    assert ours.preintMeasCov().shape == (15, 15)
+    with pytest.raises(TypeError, match="PreintegrationCombinedParams"):
+        learned_combined_pim(gyro, acc, DT, 1e-8, 1e-6, params=gtsam.PreintegrationParams.MakeSharedU(9.8))
+
+
+def test_params_are_honoured_and_gravity_has_no_default():
+    import gtsam
+
+    gyro, acc, gyro_density, acc_density = samples(200, max_rate=0.5, seed=5)
+    params = gtsam.PreintegrationParams.MakeSharedU(9.8)
+    params.setGyroscopeCovariance(np.eye(3) * 1e-6)
+    params.setAccelerometerCovariance(np.eye(3) * 1e-4)
+    params.setIntegrationCovariance(np.eye(3) * 1e-7)
+    params.setBodyPSensor(gtsam.Pose3(gtsam.Rot3.Rz(0.5), np.array([0.2, 0.0, 0.1])))
+    params.setOmegaCoriolis(np.array([1e-5, 0.0, 7e-5]))
+    ours = learned_pim(gyro, acc, DT, 1e-6, 1e-4, params=params)
+    theirs = gtsam_own(gtsam.PreintegratedImuMeasurements(params, gtsam.imuBias.ConstantBias()), gyro, acc, DT)
+    np.testing.assert_allclose(ours.preintMeasCov(), theirs.preintMeasCov(), rtol=1e-12, atol=1e-30)
+    np.testing.assert_allclose(ours.preintegrated(), theirs.preintegrated(), atol=1e-13)
+    plain = learned_pim(gyro, acc, DT, 1e-6, 1e-4, 9.8)  # no bodyPSensor: a different measurement
+    assert np.abs(plain.preintegrated() - theirs.preintegrated()).max() > 1e-3
+    with pytest.raises(ValueError, match="no default"):
+        learned_pim(gyro, acc, DT, gyro_density, acc_density)
+    with pytest.raises(ValueError, match="not both"):
+        learned_pim(gyro, acc, DT, gyro_density, acc_density, 9.8, params=params)

@@ -1,0 +1,25 @@
+"""Run by .ci/run from outside the checkout with a fresh venv holding only the built wheel and its dependencies:
+every shipped config loads from the installed package, and the CLI starts."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import airimu_configs
+
+from fusion.config import load_pgo_config
+from learned_imu.config import load_config
+
+folder = airimu_configs.FOLDER
+assert "site-packages" in folder.parts, f"configs not from the installed wheel: {folder}"
+names = airimu_configs.names()
+assert {"demo.yaml", "pgo_demo.yaml", "euroc.yaml", "kitti.yaml", "pgo_kitti.yaml"} <= set(names), names
+for name in names:
+    config = load_pgo_config(name) if name.startswith("pgo_") else load_config(name)
+    if name.startswith("pgo_"):
+        assert Path(config.experiment).is_file(), (name, config.experiment)
+print(f"{len(names)} shipped configs load from {folder}")
+cli = Path(sys.executable).parent / "airimu"
+for command in (["--help"], ["demo", "--help"]):
+    subprocess.run([str(cli), *command], check=True, capture_output=True)
+print("airimu starts from the wheel")

@@ -74,7 +74,7 @@ def main() -> None:
     model = (
         model_from_checkpoint(args.checkpoint)[0]
         if args.checkpoint
-        else AirImuNet(init_gyro_density=1e-6, init_acc_density=1e-4).eval()
+        else AirImuNet(init_gyro_cov=1e-6, init_acc_cov=1e-4).eval()
     )
     data_s = seq.t[-1] - seq.t[0]
     print(f"{args.minutes:g} min at 200 Hz ({len(seq):,} samples, blocks of {args.block}), {len(gps.t)} GPS fixes, "

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import typer
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help="AirIMU: learned IMU factors for GTSAM.")
@@ -319,8 +321,12 @@ def export(
     keyframes: str = typer.Option("0.1s", help="keyframe interval like '0.1s', or a file of times (s) per line"),
     out: str = typer.Option(..., help="output .npz (format in learned_imu.export)"),
     imu_file: str = typer.Option(None, help="EuRoC/TUM-VI: IMU csv relative to the sequence folder"),
-    gyro_density: float = typer.Option(None, help="without --checkpoint: gyro noise density, rad/s/sqrt(Hz)"),
-    acc_density: float = typer.Option(None, help="without --checkpoint: acc noise density, m/s^2/sqrt(Hz)"),
+    gyro_noise_density: float = typer.Option(
+        None, help="without --checkpoint: gyro noise density, sigma, rad/s/sqrt(Hz) (Kalibr)"
+    ),
+    acc_noise_density: float = typer.Option(
+        None, help="without --checkpoint: acc noise density, sigma, m/s^2/sqrt(Hz) (Kalibr)"
+    ),
 ) -> None:
     """Export corrected samples, their learned noise and preintegrated keyframe deltas + covariances for GTSAM."""
     from rich.console import Console
@@ -337,9 +343,12 @@ def export(
         c = correct(model, sequence, bool(config.get("train", {}).get("remove_gravity", False)))
         arrays = (c.gyro_cov.numpy(), c.acc_cov.numpy(), c.gyro.numpy(), c.acc.numpy())
     else:
-        if gyro_density is None or acc_density is None:
-            raise typer.BadParameter("without --checkpoint, give --gyro-density and --acc-density")
-        arrays = (gyro_density**2, acc_density**2, None, None)
+        if gyro_noise_density is None or acc_noise_density is None:
+            raise typer.BadParameter("without --checkpoint, give --gyro-noise-density and --acc-noise-density")
+        for flag, value in (("--gyro-noise-density", gyro_noise_density), ("--acc-noise-density", acc_noise_density)):
+            if not (math.isfinite(value) and value > 0):
+                raise typer.BadParameter(f"{flag} must be a positive sigma, got {value!r}")
+        arrays = (gyro_noise_density**2, acc_noise_density**2, None, None)
     written = export_preintegration(out, sequence, index, *arrays)
     Console().print(f"{len(index) - 1} keyframe intervals of {sequence.name} written to {written}")
 

@@ -36,7 +36,7 @@ from factors.gps import ROBUST_LOSSES
 from fusion.graph import Trajectory
 from fusion.initial import priors_on_first
 from learned_imu.errors import AirImuError, InputError
-from learned_imu.model import DEFAULT_ACC_DENSITY, DEFAULT_GYRO_DENSITY, AirImuNet
+from learned_imu.model import DEFAULT_ACC_COV, DEFAULT_GYRO_COV, AirImuNet
 
 log = logging.getLogger(__name__)
 X, V, B = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V, gtsam.symbol_shorthand.B
@@ -75,11 +75,11 @@ class OnlineFusion:
     """Incremental IMU + GPS fusion with learned IMU factors (see the module docstring).
 
     Args:
-        model: an ``AirImuNet`` in eval mode, or None for the raw samples with ``gyro_density`` / ``acc_density``.
+        model: an ``AirImuNet`` in eval mode, or None for the raw samples with ``gyro_cov`` / ``acc_cov``.
         gravity: (3,) gravity vector in the world frame, m/s^2.
         initial_state: (rot (3, 3) world <- IMU, pos (3,) m, vel (3,) m/s) at the first IMU sample: the prior's mean.
         keyframe_s: keyframe interval, s (each keyframe costs ~10-20 ms of CPU, see BENCHMARKS.md).
-        gyro_density, acc_density: noise densities without a model, rad^2/s and m^2/s^3 (float or (3,)).
+        gyro_cov, acc_cov: noise densities without a model, sigma^2: rad^2/s and m^2/s^3 (float or (3,)).
         smoother: ``"isam2"`` (keeps every keyframe) or ``"fixed_lag"`` (keeps the last ``lag_s`` seconds; an older
             keyframe's trajectory entry is its estimate when it left the window).
         lag_s: window of the fixed-lag smoother, s.
@@ -94,8 +94,8 @@ class OnlineFusion:
         gravity,
         initial_state,
         keyframe_s: float = 1.0,
-        gyro_density=DEFAULT_GYRO_DENSITY,
-        acc_density=DEFAULT_ACC_DENSITY,
+        gyro_cov=DEFAULT_GYRO_COV,
+        acc_cov=DEFAULT_ACC_COV,
         smoother: str = "isam2",
         lag_s: float = 10.0,
         prior_rot_sigma_rad: float = 0.01,
@@ -115,7 +115,7 @@ class OnlineFusion:
         rot, pos, vel = (np.asarray(x, dtype=float) for x in initial_state)
         self._first = (gtsam.Pose3(gtsam.Rot3(rot), _vector("initial pos", pos)), _vector("initial vel", vel))
         self._prior_sigmas = (float(prior_rot_sigma_rad), float(prior_pos_sigma_m), float(prior_vel_sigma_m_s))
-        self._density = np.hstack([np.broadcast_to(np.asarray(d, float), (3,)) for d in (gyro_density, acc_density)])
+        self._density = np.hstack([np.broadcast_to(np.asarray(d, float), (3,)) for d in (gyro_cov, acc_cov)])
         if not np.all(self._density > 0) or min(self._prior_sigmas) <= 0:
             raise InputError("OnlineFusion: noise densities and prior sigmas must be > 0")
         if gps_robust not in (None, *ROBUST_LOSSES):

@@ -45,7 +45,7 @@ class PgoSetting:
     """One setting: which samples (``"raw"`` or ``"airimu"``) and which covariance (``"fixed"`` or ``"learned"``).
 
     ``noise_density``: (gyro rad/s/sqrt(Hz), acc m/s^2/sqrt(Hz)), sigmas, of a ``"fixed"`` covariance (None: the
-    options' ``fixed_*_density``); ``bias``: estimate bias states (``fusion.graph.BiasStates``); ``key``: the
+    options' ``fixed_*_noise_density``); ``bias``: estimate bias states (``fusion.graph.BiasStates``); ``key``: the
     export's file-name part."""
 
     name: str
@@ -94,8 +94,8 @@ class PgoOptions:
     gps_sigma_m: float = 0.1
     seeds: int = 10
     keyframe_interval_s: float = 0.1
-    fixed_gyro_density: float = 0.004
-    fixed_acc_density: float = 0.08
+    fixed_gyro_noise_density: float = 0.004
+    fixed_acc_noise_density: float = 0.08
     # where ATE is scored: "keyframes" (the whole keyframe span) or "gps" (from the first to the last fused fix:
     # past the last fix the graph dead-reckons, and how far depends on where the fixes fall, not on the setting)
     score_span: str = "keyframes"
@@ -137,7 +137,8 @@ def write_exports(
     for setting in settings:
         gyro, acc = (None, None) if setting.samples == "raw" else (correction.gyro.numpy(), correction.acc.numpy())
         if setting.covariance == "fixed":
-            gyro_sigma, acc_sigma = setting.noise_density or (options.fixed_gyro_density, options.fixed_acc_density)
+            fixed = (options.fixed_gyro_noise_density, options.fixed_acc_noise_density)
+            gyro_sigma, acc_sigma = setting.noise_density or fixed
             covs = (gyro_sigma**2, acc_sigma**2)
         else:
             covs = (correction.gyro_cov.numpy(), correction.acc_cov.numpy())

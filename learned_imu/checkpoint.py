@@ -17,7 +17,7 @@ from pathlib import Path
 
 import torch
 
-from learned_imu.config import ModelConfig, from_dict
+from learned_imu.config import ModelConfig, from_dict, renamed
 from learned_imu.errors import DataError
 from learned_imu.io import atomic_file
 from learned_imu.model import AirImuNet
@@ -52,6 +52,8 @@ def load_checkpoint(path: str | Path) -> dict:
     missing = [key for key in _REQUIRED if key not in payload]
     if missing:
         raise DataError(path, missing[0], "missing from the checkpoint")
+    if isinstance(payload["config"], dict):  # files written before the naming rule keep loading
+        payload["config"] = renamed(payload["config"])
     return payload
 
 
@@ -80,6 +82,6 @@ def build_model(config: ModelConfig) -> AirImuNet:
         dropout=config.dropout,
         acc_scale_m_s2=config.acc_scale_m_s2,
         gyro_scale_rad_s=config.gyro_scale_rad_s,
-        init_gyro_density=config.init_gyro_density,
-        init_acc_density=config.init_acc_density,
+        init_gyro_cov=config.init_gyro_cov,
+        init_acc_cov=config.init_acc_cov,
     )

@@ -73,8 +73,8 @@ class ModelConfig:
     dropout: float = 0.1
     acc_scale_m_s2: float = 0.1
     gyro_scale_rad_s: float = 0.017453292519943295  # 1 deg/s
-    init_gyro_density: float = 1.6968e-4**2  # rad^2/s
-    init_acc_density: float = 2.0e-3**2  # m^2/s^3
+    init_gyro_cov: float = 1.6968e-4**2  # noise density of the untrained model, sigma^2: rad^2/s
+    init_acc_cov: float = 2.0e-3**2  # m^2/s^3
 
 
 @dataclass(frozen=True)
@@ -193,6 +193,25 @@ def read_yaml(path: Path):
         raise ConfigError(f"{path}: not valid YAML: {error}") from error
 
 
+# Keys renamed by the naming rule (``*_cov``: a variance or continuous-time density, sigma^2, as GTSAM's setters take
+# it; ``*_noise_density``: sigma, as Kalibr writes it): an old key is an error naming the new one.
+RENAMED_KEYS = {
+    "init_gyro_density": ("init_gyro_cov", "sigma^2, rad^2/s"),
+    "init_acc_density": ("init_acc_cov", "sigma^2, m^2/s^3"),
+    "fixed_gyro_density": ("fixed_gyro_noise_density", "sigma, rad/s/sqrt(Hz)"),
+    "fixed_acc_density": ("fixed_acc_noise_density", "sigma, m/s^2/sqrt(Hz)"),
+}
+
+
+def renamed(data: dict, where: str = "") -> dict:
+    """``data`` (a stored config mapping, e.g. a checkpoint's) with renamed keys moved to their new names."""
+    out = {}
+    for key, value in data.items():
+        new = RENAMED_KEYS.get(key, (key,))[0]
+        out[new] = renamed(value) if isinstance(value, dict) else value
+    return out
+
+
 def from_dict(cls, data, source: str = "config", where: str = ""):
     """Build dataclass ``cls`` from a mapping, checking every key and type (errors name ``source`` and the key)."""
     if not isinstance(data, dict):
@@ -200,6 +219,9 @@ def from_dict(cls, data, source: str = "config", where: str = ""):
     hints = typing.get_type_hints(cls)
     known = {f.name: f for f in dataclasses.fields(cls)}
     for key in data:
+        if key in RENAMED_KEYS and RENAMED_KEYS[key][0] in known:
+            new, meaning = RENAMED_KEYS[key]
+            raise ConfigError(f"{source}: key '{_join(where, key)}' is now '{_join(where, new)}' ({meaning})")
         if key not in known:
             raise ConfigError(
                 f"{source}: unknown key '{_join(where, key)}'; known keys here: {', '.join(sorted(known))}"

@@ -14,8 +14,9 @@ Conventions (float32 throughout):
   M a positive multiple of ``block``. Another M is an error: TorchScript raises naming the block; ONNX Runtime
   fails without naming it, in a Gather node ("indices element out of data bounds") or, for M < block, a Conv node.
 - Outputs ``gyro_corrected`` (B, M, 3) rad/s and ``acc_corrected`` (B, M, 3) m/s^2 (raw + learned correction, IMU
-  frame); ``gyro_density`` (B, M, 3) rad^2/s and ``acc_density`` (B, M, 3) m^2/s^3: the diagonal noise as
-  continuous-time densities, as ``gtsam.PreintegrationParams`` takes them (one sample's variance is density / dt).
+  frame); ``gyro_cov`` (B, M, 3) rad^2/s and ``acc_cov`` (B, M, 3) m^2/s^3: the diagonal noise as
+  continuous-time densities (sigma^2), as ``gtsam.PreintegrationParams`` takes them (one sample's variance is
+  density / dt).
 - State, zeros before the first chunk: ``conv_history_{i}`` (B, C_i, kernel - stride), the last inputs of
   convolution ``i`` (none if kernel == stride); ``gru_hidden_{j}`` (1, B, H_j), the hidden state of GRU ``j``
   (none in the CNN-only model). The step returns them as ``next_conv_history_{i}`` and ``next_gru_hidden_{j}``,
@@ -23,8 +24,8 @@ Conventions (float32 throughout):
 
 ONNX (opset ``ONNX_OPSET``, one self-contained file): axes ``batch`` and ``samples`` (= block x blocks) are dynamic;
 the file's metadata holds ``block``, the input and output names and the units. TorchScript: ``forward(gyro, acc,
-conv_history: List[Tensor], gru_hidden: List[Tensor]) -> (gyro_corrected, acc_corrected, gyro_density,
-acc_density, next_conv_history, next_gru_hidden)``, ``initial_state(batch)`` and the attribute ``block``
+conv_history: List[Tensor], gru_hidden: List[Tensor]) -> (gyro_corrected, acc_corrected, gyro_cov,
+acc_cov, next_conv_history, next_gru_hidden)``, ``initial_state(batch)`` and the attribute ``block``
 (torch 2.13 marks TorchScript deprecated and warns; ONNX is the format to keep).
 
 Models trained with ``train.remove_gravity`` read gravity in the IMU frame from ground truth, which a deployed model
@@ -48,7 +49,7 @@ log = logging.getLogger(__name__)
 
 FORMATS = ("torchscript", "onnx")
 ONNX_OPSET = 18  # the exporter op library's own (torch 2.13 defaults to 20); onnxruntime >= 1.14 loads it
-OUTPUT_NAMES = ("gyro_corrected", "acc_corrected", "gyro_density", "acc_density")
+OUTPUT_NAMES = ("gyro_corrected", "acc_corrected", "gyro_cov", "acc_cov")
 _EXAMPLE_BLOCKS = 2  # chunk length of the example that the ONNX export traces (> 1, so it is not specialised)
 
 
@@ -218,7 +219,8 @@ def _onnx_bytes(step: StreamingStep) -> bytes:
             "block": str(step.block),
             "inputs": ",".join(inputs),
             "outputs": ",".join(outputs),
-            "units": "gyro rad/s, acc m/s^2 (IMU frame); gyro_density rad^2/s, acc_density m^2/s^3 (continuous time)",
+            "units": "gyro rad/s, acc m/s^2 (IMU frame); gyro_cov rad^2/s, acc_cov m^2/s^3 "
+            "(continuous-time densities, sigma^2)",
         },
     )
     onnx.checker.check_model(proto)

@@ -40,8 +40,8 @@ from learned_imu.errors import InputError
 ACC_INPUT_SCALE_M_S2 = 9.81  # acc is divided by this before the network: inputs of order 1, like gyro in rad/s
 # Initial noise densities: EuRoC's ADIS16448 (datasheet white noise 1.6968e-4 rad/s/sqrt(Hz), 2.0e-3 m/s^2/sqrt(Hz)),
 # the quiet end of consumer MEMS IMUs (phones and cheap boards reach ~1e-3 rad/s/sqrt(Hz), ~1e-2 m/s^2/sqrt(Hz)).
-DEFAULT_GYRO_DENSITY = 1.6968e-4**2  # rad^2/s
-DEFAULT_ACC_DENSITY = 2.0e-3**2  # m^2/s^3
+DEFAULT_GYRO_COV = 1.6968e-4**2  # noise density, sigma^2: rad^2/s
+DEFAULT_ACC_COV = 2.0e-3**2  # m^2/s^3
 LOG_DENSITY_LIMIT = 20.0  # |log(density / initial density)| is clamped to this: a factor e^20 ~ 5e8 either way
 
 
@@ -95,8 +95,8 @@ class AirImuNet(nn.Module):
         dropout: dropout probability after each convolution (training only).
         acc_scale_m_s2: acc correction per unit of network output, m/s^2.
         gyro_scale_rad_s: gyro correction per unit of network output, rad/s.
-        init_gyro_density: gyro noise density of the untrained model, rad^2/s.
-        init_acc_density: acc noise density of the untrained model, m^2/s^3.
+        init_gyro_cov: gyro noise density of the untrained model, sigma^2: rad^2/s.
+        init_acc_cov: acc noise density of the untrained model, sigma^2: m^2/s^3.
         acc_input_scale_m_s2: acc is divided by this before the network.
     """
 
@@ -111,8 +111,8 @@ class AirImuNet(nn.Module):
         dropout: float = 0.1,
         acc_scale_m_s2: float = 0.1,
         gyro_scale_rad_s: float = math.radians(1.0),
-        init_gyro_density: float = DEFAULT_GYRO_DENSITY,
-        init_acc_density: float = DEFAULT_ACC_DENSITY,
+        init_gyro_cov: float = DEFAULT_GYRO_COV,
+        init_acc_cov: float = DEFAULT_ACC_COV,
         acc_input_scale_m_s2: float = ACC_INPUT_SCALE_M_S2,
     ):
         super().__init__()
@@ -120,8 +120,8 @@ class AirImuNet(nn.Module):
             raise InputError(
                 f"AirImuNet: need 1 <= stride <= kernel_size, got stride {stride} and kernel_size {kernel_size}"
             )
-        if min(init_gyro_density, init_acc_density) <= 0:
-            raise InputError("AirImuNet: init_gyro_density and init_acc_density must be > 0")
+        if min(init_gyro_cov, init_acc_cov) <= 0:
+            raise InputError("AirImuNet: init_gyro_cov and init_acc_cov must be > 0")
         self.stride, self.kernel_size = stride, kernel_size
         self.pad = kernel_size - stride  # left padding: each window ends on the last sample of its stride block
         self.block = stride ** len(conv_channels)  # input samples per feature step
@@ -141,8 +141,9 @@ class AirImuNet(nn.Module):
         self.gyro_cov_decoder = _decoder(sizes[-1], decoder_hidden)
         self.register_buffer("acc_scale", torch.tensor(acc_scale_m_s2))
         self.register_buffer("gyro_scale", torch.tensor(gyro_scale_rad_s))
-        self.register_buffer("log_init_acc_density", torch.tensor(math.log(init_acc_density)))
-        self.register_buffer("log_init_gyro_density", torch.tensor(math.log(init_gyro_density)))
+        # buffer names kept from before the naming rule: they are checkpoint keys
+        self.register_buffer("log_init_acc_density", torch.tensor(math.log(init_acc_cov)))
+        self.register_buffer("log_init_gyro_density", torch.tensor(math.log(init_gyro_cov)))
 
     def forward(self, gyro: torch.Tensor, acc: torch.Tensor, gravity_imu: torch.Tensor | None = None) -> Correction:
         """Correct whole sequences in one pass, starting from rest (zero history and GRU states).

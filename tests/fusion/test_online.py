@@ -47,7 +47,7 @@ def small_model() -> AirImuNet:
     torch.manual_seed(0)
     model = AirImuNet(
         conv_channels=(8, 16), gru_sizes=(16, 32), decoder_hidden=16,
-        init_gyro_density=DENSITIES[0], init_acc_density=DENSITIES[1],
+        init_gyro_cov=DENSITIES[0], init_acc_cov=DENSITIES[1],
     )  # fmt: skip
     for decoder in (model.acc_decoder, model.gyro_decoder, model.acc_cov_decoder, model.gyro_cov_decoder):
         torch.nn.init.normal_(decoder[-1].weight, std=0.1)

@@ -55,6 +55,7 @@ def test_round_trip_and_defaults(tmp_path):
         ("model: {gru_sizes: 64}\n", "key 'model.gru_sizes': expected a list"),
         ("train: {lr: fast}\n", "key 'train.lr': expected float"),
         ("bogus: 1\n", "unknown key 'bogus'"),
+        ("model: {init_gyro_density: 1.0e-8}\n", r"'model.init_gyro_density' is now 'model.init_gyro_cov' \(sigma\^2"),
     ],
 )
 def test_bad_keys_are_named(tmp_path, extra, message):
@@ -110,3 +111,27 @@ def test_data_root_override_moves_every_sequence_list(tmp_path, shared_data):
     assert [s.name for s in load_sequences(config.data.evaluate[:1], config.data.root)] == ["V2_02_medium"]
     with pytest.raises(DataError, match=r"V1_01_easy.*imu_file"):  # what the shared data lacks, said plainly
         load_sequences(config.data.evaluate[1:], config.data.root)
+
+
+def test_renamed_keys_name_the_new_key_and_old_checkpoints_still_load(tmp_path):
+    import torch
+
+    from fusion.config import load_pgo_config
+    from learned_imu.checkpoint import model_from_checkpoint, save_checkpoint
+    from learned_imu.config import ModelConfig
+    from learned_imu.model import AirImuNet
+
+    pgo = tmp_path / "pgo.yaml"
+    pgo.write_text("name: p\nexperiment: e.yaml\nrun: r\noptions: {fixed_gyro_density: 0.004}\n")
+    with pytest.raises(ConfigError, match=r"'options.fixed_gyro_density' is now 'options.fixed_gyro_noise_density'"):
+        load_pgo_config(pgo)
+    # a checkpoint written before the naming rule: its stored config has the old keys
+    old = {**to_dict(ModelConfig(use_gru=False)), "init_gyro_density": 4e-8, "init_acc_density": 9e-6}
+    del old["init_gyro_cov"], old["init_acc_cov"]
+    model = AirImuNet(use_gru=False, init_gyro_cov=4e-8, init_acc_cov=9e-6)
+    save_checkpoint(tmp_path / "old.pt", {"model": old}, {"model": model.state_dict()}, {})
+    loaded, config = model_from_checkpoint(tmp_path / "old.pt")
+    assert config["model"]["init_gyro_cov"] == 4e-8 and "init_gyro_density" not in config["model"]
+    with torch.no_grad():
+        out = loaded(torch.zeros(1, 9, 3), torch.zeros(1, 9, 3))
+    assert torch.allclose(out.gyro_cov, torch.full_like(out.gyro_cov, 4e-8), rtol=1e-5)

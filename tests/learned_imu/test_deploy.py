@@ -157,8 +157,8 @@ def test_onnx_runs_without_torch_or_this_package(exported, tmp_path):
         f"x = dict(np.load({str(tmp_path / 'in.npz')!r}))\n"
         "state = {i.name: np.zeros([1 if d == 'batch' else d for d in i.shape], np.float32)"
         " for i in s.get_inputs()[2:]}\n"
-        "out = s.run(['gyro_corrected', 'acc_density'], {**x, **state})\n"
-        f"np.savez({str(tmp_path / 'out.npz')!r}, gyro=out[0], acc_density=out[1])\n"
+        "out = s.run(['gyro_corrected', 'acc_cov'], {**x, **state})\n"
+        f"np.savez({str(tmp_path / 'out.npz')!r}, gyro=out[0], acc_cov=out[1])\n"
         "print('LOADED:', sorted(m for m in ('torch', 'learned_imu') if m in sys.modules))\n"
     )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path)
@@ -167,7 +167,7 @@ def test_onnx_runs_without_torch_or_this_package(exported, tmp_path):
     out = np.load(tmp_path / "out.npz")
     whole = correct_sequence(model, gyro[0], acc[0])
     torch.testing.assert_close(torch.as_tensor(out["gyro"][0]), whole.gyro, **TOL)
-    torch.testing.assert_close(torch.as_tensor(out["acc_density"][0]), whole.acc_cov, **DENSITY_TOL)
+    torch.testing.assert_close(torch.as_tensor(out["acc_cov"][0]), whole.acc_cov, **DENSITY_TOL)
 
 
 def test_onnx_names_axes_and_metadata(exported):
@@ -177,7 +177,7 @@ def test_onnx_names_axes_and_metadata(exported):
     outputs = [o.name for o in session.get_outputs()]
     state = ["conv_history_0", "conv_history_1"] + (["gru_hidden_0", "gru_hidden_1"] if len(model.grus) else [])
     assert list(inputs) == ["gyro", "acc", *state]
-    assert outputs == ["gyro_corrected", "acc_corrected", "gyro_density", "acc_density", *(f"next_{s}" for s in state)]
+    assert outputs == ["gyro_corrected", "acc_corrected", "gyro_cov", "acc_cov", *(f"next_{s}" for s in state)]
     assert inputs["gyro"] == ["batch", "samples", 3]
     assert inputs["conv_history_1"] == ["batch", 8, 4]  # (B, C, kernel - stride)
     if len(model.grus):

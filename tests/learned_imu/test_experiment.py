@@ -171,8 +171,8 @@ def test_noise_scaled_on_the_validation_windows_when_asked(tmp_path):
     assert best["best"]["calibrated"] and len(scales) == 2 and min(scales) > 0
     model, _ = model_from_checkpoint(tmp_path / "run" / "best.pt")
     init = dataclasses.asdict(TINY.model)
-    assert float(model.log_init_gyro_density) == pytest.approx(np.log(init["init_gyro_density"] * scales[0]), abs=1e-5)
-    assert float(model.log_init_acc_density) == pytest.approx(np.log(init["init_acc_density"] * scales[1]), abs=1e-5)
+    assert float(model.log_init_gyro_density) == pytest.approx(np.log(init["init_gyro_cov"] * scales[0]), abs=1e-5)
+    assert float(model.log_init_acc_density) == pytest.approx(np.log(init["init_acc_cov"] * scales[1]), abs=1e-5)
 
 
 def test_noise_scaling_asked_for_after_a_run_finished_is_applied_once(tmp_path):

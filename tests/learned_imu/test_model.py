@@ -9,8 +9,8 @@ import torch
 
 from learned_imu import preintegrate
 from learned_imu.model import (
-    DEFAULT_ACC_DENSITY,
-    DEFAULT_GYRO_DENSITY,
+    DEFAULT_ACC_COV,
+    DEFAULT_GYRO_COV,
     LOG_DENSITY_LIMIT,
     AirImuNet,
     correct_sequence,
@@ -61,14 +61,14 @@ def test_untrained_model_passes_raw_imu_with_initial_densities_that_preintegrate
     for field in ("gyro", "acc", "d_gyro", "d_acc", "gyro_cov", "acc_cov"):
         assert getattr(out, field).shape == (2, 100, 3), field
     assert torch.equal(out.gyro, gyro) and torch.equal(out.acc, acc)
-    assert torch.allclose(out.gyro_cov, torch.full_like(out.gyro_cov, DEFAULT_GYRO_DENSITY), rtol=1e-5)
-    assert torch.allclose(out.acc_cov, torch.full_like(out.acc_cov, DEFAULT_ACC_DENSITY), rtol=1e-5)
+    assert torch.allclose(out.gyro_cov, torch.full_like(out.gyro_cov, DEFAULT_GYRO_COV), rtol=1e-5)
+    assert torch.allclose(out.acc_cov, torch.full_like(out.acc_cov, DEFAULT_ACC_COV), rtol=1e-5)
     # the densities go straight into preintegrate: same covariance as the scalar densities
     learned = preintegrate(out.gyro.double(), out.acc.double(), DT_S, out.gyro_cov.double(), out.acc_cov.double())
-    scalar = preintegrate(gyro.double(), acc.double(), DT_S, DEFAULT_GYRO_DENSITY, DEFAULT_ACC_DENSITY)
+    scalar = preintegrate(gyro.double(), acc.double(), DT_S, DEFAULT_GYRO_COV, DEFAULT_ACC_COV)
     torch.testing.assert_close(learned.cov, scalar.cov, rtol=1e-5, atol=1e-6 * scalar.cov.abs().max().item())
     # rotation variance after 1 s of white gyro noise is about density * t (rad^2)
-    assert learned.cov[0, -1, 0, 0].item() == pytest.approx(DEFAULT_GYRO_DENSITY * 100 * DT_S, rel=0.05)
+    assert learned.cov[0, -1, 0, 0].item() == pytest.approx(DEFAULT_GYRO_COV * 100 * DT_S, rel=0.05)
 
 
 def test_unit_network_output_is_the_documented_correction_and_density_factor():
@@ -83,8 +83,8 @@ def test_unit_network_output_is_the_documented_correction_and_density_factor():
     assert torch.allclose(out.d_acc, torch.full_like(out.d_acc, 0.1))  # m/s^2
     assert torch.allclose(out.d_gyro, torch.full_like(out.d_gyro, math.radians(1.0)))  # rad/s
     assert torch.allclose(out.gyro, gyro + math.radians(1.0)) and torch.allclose(out.acc, acc + 0.1)
-    assert torch.allclose(out.gyro_cov, torch.full_like(out.gyro_cov, 4 * DEFAULT_GYRO_DENSITY), rtol=1e-5)
-    assert torch.allclose(out.acc_cov, torch.full_like(out.acc_cov, 4 * DEFAULT_ACC_DENSITY), rtol=1e-5)
+    assert torch.allclose(out.gyro_cov, torch.full_like(out.gyro_cov, 4 * DEFAULT_GYRO_COV), rtol=1e-5)
+    assert torch.allclose(out.acc_cov, torch.full_like(out.acc_cov, 4 * DEFAULT_ACC_COV), rtol=1e-5)
 
 
 def test_densities_stay_positive_and_finite_at_extreme_network_outputs():
@@ -93,7 +93,7 @@ def test_densities_stay_positive_and_finite_at_extreme_network_outputs():
     torch.nn.init.constant_(model.acc_cov_decoder[-1].bias, -1e4)
     with torch.no_grad():
         out = model(*samples(9))
-    largest = DEFAULT_GYRO_DENSITY * math.exp(LOG_DENSITY_LIMIT)  # rad^2/s
+    largest = DEFAULT_GYRO_COV * math.exp(LOG_DENSITY_LIMIT)  # rad^2/s
     assert torch.allclose(out.gyro_cov, torch.full_like(out.gyro_cov, largest))
     assert (out.acc_cov > 0).all() and torch.isfinite(out.acc_cov).all()
 

@@ -23,6 +23,11 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
+# an IMU on Earth measures about g of specific force; a median below this over an interval (not a brief free fall)
+# means the samples are not m/s^2 of specific force (swapped with the gyro, or in g)
+MIN_MEDIAN_SPECIFIC_FORCE = 3.0  # m/s^2
+MIN_SAMPLES_FOR_GRAVITY_CHECK = 10
+
 
 def learned_pim(
     gyro,
@@ -121,6 +126,12 @@ def _checked(gyro, acc, dt, gyro_cov, acc_cov):
     dt = np.broadcast_to(np.asarray(dt, dtype=float), (n,))
     if not np.all(np.isfinite(dt)) or np.any(dt <= 0):
         raise ValueError("learned_pim: dt must be positive and finite for every sample")
+    force = float(np.median(np.linalg.norm(acc, axis=1)))
+    if n >= MIN_SAMPLES_FOR_GRAVITY_CHECK and force < MIN_MEDIAN_SPECIFIC_FORCE:
+        raise ValueError(
+            f"learned_pim: the median |acc| is {force:.3g} m/s^2, far from gravity (~9.8) for a specific force: "
+            "are gyro and acc swapped, or is acc in g? (arguments: gyro rad/s first, then acc m/s^2)"
+        )
     return gyro, acc, dt, _densities("gyro_cov", gyro_cov, n), _densities("acc_cov", acc_cov, n)
 
 

@@ -382,7 +382,9 @@ def scale_noise_command(
     scale_noise(model, *scales)
     previous = payload["best"].get("noise_scales", [1.0, 1.0])
     best = {**payload["best"], "noise_scales": [previous[0] * scales[0], previous[1] * scales[1]]}
-    written = save_checkpoint(out, config, {**payload["trainer"], "model": model.state_dict()}, best)
+    written = save_checkpoint(
+        out, config, {**payload["trainer"], "model": model.state_dict()}, best, payload.get("trained_on")
+    )
     Console().print(
         f"noise scaled by {scales[0]:.3g} (gyro) and {scales[1]:.3g} (acc) on {sequence.name}; NSE rot/pos/vel "
         f"{before[0]:.2f}/{before[1]:.2f}/{before[2]:.2f} -> {after[0]:.2f}/{after[1]:.2f}/{after[2]:.2f}; "

@@ -6,7 +6,11 @@ Contents (plain tensors, numbers, strings, lists and dicts only, so the safe loa
 - ``config``: the resolved ``ExperimentConfig`` as a plain dict (``learned_imu.config.to_dict``), from which
   the model is rebuilt without the YAML file;
 - ``trainer``: ``Trainer.state_dict()`` (model, optimiser, schedule, RNG states, epochs done);
-- ``best``: the best validation record so far (a dict of floats, or empty).
+- ``best``: the best validation record so far (a dict of floats, or empty);
+- ``trained_on`` (optional; absent in files written before it): ``rate_hz``, the median IMU rate of the training
+  sequences, and ``datasets``, their reader names. ``model_from_checkpoint`` hands it to the model
+  (``model.trained_on``), and ``learned_imu.experiment.correct`` refuses data whose rate differs by more than
+  ``MAX_RATE_MISMATCH``.
 """
 
 from __future__ import annotations
@@ -27,9 +31,13 @@ VERSION = 1
 _REQUIRED = ("format", "version", "config", "trainer", "best")
 
 
-def save_checkpoint(path: str | Path, config: dict, trainer_state: dict, best: dict) -> Path:
+def save_checkpoint(
+    path: str | Path, config: dict, trainer_state: dict, best: dict, trained_on: dict | None = None
+) -> Path:
     """Write a checkpoint atomically (a crash leaves the previous file intact)."""
     payload = {"format": FORMAT, "version": VERSION, "config": config, "trainer": trainer_state, "best": best}
+    if trained_on is not None:
+        payload["trained_on"] = trained_on
     with atomic_file(path, "wb") as f:
         torch.save(payload, f)
     return Path(path)
@@ -67,6 +75,7 @@ def model_from_checkpoint(path: str | Path) -> tuple[AirImuNet, dict]:
         model.load_state_dict(payload["trainer"]["model"])
     except (KeyError, RuntimeError) as error:
         raise DataError(path, "trainer.model", f"weights do not fit the stored model config ({error})") from error
+    model.trained_on = payload.get("trained_on")
     return model.eval(), config
 
 

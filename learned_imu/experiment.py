@@ -33,7 +33,7 @@ import torch
 from learned_imu.checkpoint import build_model, load_checkpoint, save_checkpoint
 from learned_imu.config import ExperimentConfig, SequenceConfig, resolve_device, save_config, to_dict
 from learned_imu.distributed import World, agree, barrier, check_batch_size, is_writer
-from learned_imu.errors import ConfigError
+from learned_imu.errors import ConfigError, InputError
 from learned_imu.evaluate import Evaluation, evaluate
 from learned_imu.io import atomic_file, remove_temporaries
 from learned_imu.losses import LossWeights
@@ -114,7 +114,10 @@ def loss_weights(config: ExperimentConfig) -> LossWeights:
 
 def correct(model: AirImuNet, sequence: ImuSequence, remove_gravity: bool = False) -> Correction:
     """The model's output for a whole sequence, (N, 3) fields in float64 on the CPU (streamed unless gravity removal
-    needs the ground truth in one pass; computed on the model's device)."""
+    needs the ground truth in one pass; computed on the model's device). A model read from a checkpoint that
+    records its training rate (``model.trained_on``) refuses a sequence sampled more than ``MAX_RATE_MISMATCH`` off
+    it: its convolutions see time in samples."""
+    check_rate(model, sequence)
     model.eval()
     device = device_of(model)
     gyro = torch.as_tensor(sequence.gyro, dtype=torch.float32, device=device)
@@ -130,6 +133,24 @@ def correct(model: AirImuNet, sequence: ImuSequence, remove_gravity: bool = Fals
     else:
         out = correct_sequence(model, gyro, acc)
     return Correction(*(getattr(out, f).cpu().double() for f in out.__dataclass_fields__))
+
+
+MAX_RATE_MISMATCH = 0.1  # relative difference of sample rates a model is applied across
+
+
+def check_rate(model: AirImuNet, sequence: ImuSequence) -> None:
+    """An ``InputError`` when ``sequence``'s median rate is more than ``MAX_RATE_MISMATCH`` off the rate the model
+    was trained at (``model.trained_on``, from its checkpoint; nothing to check without it)."""
+    trained = getattr(model, "trained_on", None)
+    if not trained or len(sequence) < 2:
+        return
+    rate = 1.0 / float(np.median(np.diff(sequence.t)))
+    if abs(rate / trained["rate_hz"] - 1.0) > MAX_RATE_MISMATCH:
+        raise InputError(
+            f"{sequence.source or sequence.name}: IMU sampled at {rate:.1f} Hz, but the model was trained at "
+            f"{trained['rate_hz']:.1f} Hz ({', '.join(trained['datasets'])}): resample the IMU to that rate or train "
+            "a model on data at this rate"
+        )
 
 
 def evaluate_model(model: AirImuNet, sequence: ImuSequence, config: ExperimentConfig) -> Evaluation:
@@ -165,6 +186,10 @@ def train_run(
         use_covariance=use_cov, plateau_factor=t.plateau_factor, plateau_patience=t.plateau_patience,
         seed=t.seed, world=world, device=resolve_device(t.device),
     )  # fmt: skip
+    trained_on = {
+        "rate_hz": float(np.median([1.0 / float(np.median(np.diff(s.t))) for s in train_seqs])),
+        "datasets": sorted({spec.dataset for spec in config.data.train}),
+    }
     history, best = _resume(folder, cfg_dict, trainer)
     if not agree(trainer.epochs_done, world):
         raise ConfigError(f"{folder}: the ranks read different last.pt files; put the run folder on a shared disk")
@@ -182,28 +207,32 @@ def train_run(
         improved = not best or entry["val_loss"] < best["val_loss"]  # val_loss: rank 0's, on every rank
         best = dict(entry) if improved else best
         if writer:
-            _write_epoch(folder, cfg_dict, trainer, history, best, improved)
+            _write_epoch(folder, cfg_dict, trainer, history, best, improved, trained_on)
         log.info("%s epoch %d: %s", config.name, entry["epoch"], json.dumps(entry))
     # a finished run asked for the scaling later gets it then (the second stage is not repeated)
     stage = t.calibration_steps > 0 and not best.get("calibrated", False)
     scale = t.scale_noise_on_val and "noise_scales" not in best
     if writer and use_cov and (stage or scale):
-        _calibrate_best(folder, cfg_dict, trainer, best, t, stage, scale)
+        _calibrate_best(folder, cfg_dict, trainer, best, t, stage, scale, trained_on)
     barrier(world)  # every rank returns once the folder is complete
     return RunSummary(folder, trainer.epochs_done, int(best["epoch"]), best["val_loss"], best["seconds"])
 
 
-def _write_epoch(folder: Path, cfg_dict: dict, trainer: Trainer, history: list[dict], best: dict, improved: bool):
+def _write_epoch(
+    folder: Path, cfg_dict: dict, trainer: Trainer, history: list[dict], best: dict, improved: bool, trained_on: dict
+):
     """An epoch's files: ``best.pt`` if it improved, the metrics log, ``last.pt``."""
     if improved:
-        save_checkpoint(folder / "best.pt", cfg_dict, trainer.state_dict(), best)
+        save_checkpoint(folder / "best.pt", cfg_dict, trainer.state_dict(), best, trained_on)
     # the log before last.pt: a resume cuts the log back to last.pt's epochs, so a kill between the two
     # writes repeats this epoch; the other order would lose its line from the log
     _write_metrics(folder / "metrics.jsonl", history)
-    save_checkpoint(folder / "last.pt", cfg_dict, trainer.state_dict(), best)
+    save_checkpoint(folder / "last.pt", cfg_dict, trainer.state_dict(), best, trained_on)
 
 
-def _calibrate_best(folder: Path, cfg_dict: dict, trainer: Trainer, best: dict, t, stage: bool, scale: bool) -> None:
+def _calibrate_best(
+    folder: Path, cfg_dict: dict, trainer: Trainer, best: dict, t, stage: bool, scale: bool, trained_on: dict
+) -> None:
     """Second stage on the best checkpoint (``train.calibrate_uncertainty``), then the noise scaling on the
     validation windows (``train.fit_noise_scales``), as asked; marks it ``calibrated``."""
     state = load_checkpoint(folder / "best.pt")["trainer"]
@@ -217,9 +246,9 @@ def _calibrate_best(folder: Path, cfg_dict: dict, trainer: Trainer, best: dict, 
         scale_noise(trainer.model, *best["noise_scales"])
         log.info("noise scaled by %.3g (gyro) and %.3g (acc) on the validation windows", *best["noise_scales"])
     state["model"] = trainer.model.state_dict()
-    save_checkpoint(folder / "best.pt", cfg_dict, state, best)
+    save_checkpoint(folder / "best.pt", cfg_dict, state, best, trained_on)
     last = load_checkpoint(folder / "last.pt")
-    save_checkpoint(folder / "last.pt", cfg_dict, last["trainer"], best)
+    save_checkpoint(folder / "last.pt", cfg_dict, last["trainer"], best, trained_on)
     log.info("calibrated the noise of %s", folder / "best.pt")
 
 

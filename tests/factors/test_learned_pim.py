@@ -60,6 +60,14 @@ def test_bad_input_raises(change, message):
         learned_pim(g, a, d, gyro_density, acc_density, 9.81)
 
 
+def test_swapped_gyro_and_acc_are_named():
+    gyro, acc, gyro_density, acc_density = samples(50, max_rate=0.5, seed=6)
+    with pytest.raises(ValueError, match="swapped"):
+        learned_pim(acc, gyro, DT, gyro_density, acc_density, 9.81)
+    with pytest.raises(ValueError, match="in g"):
+        learned_pim(gyro, acc / 9.81, DT, gyro_density, acc_density, 9.81)
+
+
 def test_negative_density_raises():
     gyro, acc, gyro_density, acc_density = samples(10, max_rate=0.5, seed=3)
     with pytest.raises(ValueError, match="non-negative"):

@@ -59,6 +59,15 @@ def test_run_folder_holds_config_metrics_and_checkpoints(tmp_path):
     model, config = model_from_checkpoint(run / "best.pt")
     assert config["model"]["gru_sizes"] == [16] and not model.training
     assert not list(run.glob(".*.tmp"))  # no temporary file left behind
+    # the checkpoint records the rate it was trained at; data sampled more than 10 % off it is refused
+    assert model.trained_on == {"rate_hz": pytest.approx(200.0), "datasets": ["simulator"]}
+    from learned_imu.errors import InputError
+    from learned_imu.experiment import correct
+    from learned_imu.simulator import simulate
+
+    assert correct(model, simulate("drone", duration_s=2.0, rate_hz=210.0, seed=9)).gyro.shape[1] == 3
+    with pytest.raises(InputError, match=r"sampled at 100.0 Hz, but the model was trained at 200.0 Hz \(simulator\)"):
+        correct(model, simulate("drone", duration_s=2.0, rate_hz=100.0, seed=9))
 
 
 def test_resumed_run_equals_uninterrupted_run(tmp_path):

@@ -94,6 +94,98 @@ def _run_pgo(config, out, json_out, csv_out, rrd, png, epochs, progress, data_ro
         console.print(f"written: {path}")
 
 
+READER_OPTION_HELP = "a reader option as key=value (repeatable), e.g. on_backward=drop"
+GPS_HELP = "GPS CSV (t,x,y,z or t,lat,lon,alt; optional sigma columns); default: the log's own fixes"
+
+
+@app.command()
+def fuse(
+    dataset: str = typer.Option(..., help="reader name: euroc, kitti, kitti_raw, broad, rosbag, csv"),
+    path: str = typer.Option(..., help="the IMU log (file or folder, as the reader takes it)"),
+    out: str = typer.Option(..., help="folder for fused.tum, marginals.npz, fused.rrd, fused.png, summary.json"),
+    gps: str = typer.Option(None, help=GPS_HELP),
+    gps_sigma: float = typer.Option(None, help="GPS one-sigma per axis (m) where the file gives none"),
+    gps_every: int = typer.Option(1, help="fuse every n-th fix (all of them score the result)"),
+    checkpoint: str = typer.Option(None, help="a trained model; without it the raw IMU with fixed noise"),
+    bias: bool = typer.Option(False, help="estimate a bias state per keyframe"),
+    keyframes: str = typer.Option("fixes", help="'fixes' (a keyframe at every fused fix) or an interval like '1s'"),
+    gyro_noise_density: float = typer.Option(0.004, help="without --checkpoint: gyro sigma, rad/s/sqrt(Hz)"),
+    acc_noise_density: float = typer.Option(0.08, help="without --checkpoint: acc sigma, m/s^2/sqrt(Hz)"),
+    reader_option: list[str] = typer.Option(None, help=READER_OPTION_HELP),  # noqa: B008 (typer reads repeats as a list)
+) -> None:
+    """Fuse a user's own IMU + GPS log: robust GPS factors, learned (or fixed) IMU factors, optional bias states;
+    writes the fused trajectory (TUM, for evo), its marginal covariances, a Rerun recording and a PNG."""
+    from pathlib import Path
+
+    from fusion.fuse import BiasStates, fuse, read_gps_csv, write_outputs
+    from learned_imu.sequence import GpsFixes
+
+    if gps_every < 1:
+        raise typer.BadParameter(f"--gps-every must be >= 1, got {gps_every}")
+    for flag, value in (("--gyro-noise-density", gyro_noise_density), ("--acc-noise-density", acc_noise_density)):
+        if not (math.isfinite(value) and value > 0):
+            raise typer.BadParameter(f"{flag} must be a positive sigma, got {value!r}")
+    keyframe_s = None
+    if keyframes != "fixes":
+        try:
+            keyframe_s = float(keyframes.removesuffix("s"))
+        except ValueError:
+            raise typer.BadParameter(
+                f"--keyframes: expected 'fixes' or an interval like '1s', got {keyframes!r}"
+            ) from None
+        if not (math.isfinite(keyframe_s) and keyframe_s > 0):
+            raise typer.BadParameter(f"--keyframes: the interval must be positive, got {keyframes!r}")
+    sequence = _read_with_options(dataset, path, reader_option or [])
+    fixes = read_gps_csv(gps, gps_sigma) if gps else sequence.gps
+    if fixes is None:
+        raise typer.BadParameter(f"{path}: the log has no GPS fixes; pass --gps FILE")
+    used = GpsFixes(fixes.t[::gps_every], fixes.pos[::gps_every], fixes.sigma[::gps_every])
+    model = None
+    if checkpoint:
+        from learned_imu.checkpoint import model_from_checkpoint
+
+        model = model_from_checkpoint(checkpoint)[0]
+    states = BiasStates(1.67e-4, 2.91e-6, 0.1, 0.01) if bias else None
+    result = fuse(sequence, used, model, keyframe_s=keyframe_s, bias=states,
+                  noise_density=(gyro_noise_density, acc_noise_density))  # fmt: skip
+    summary, written = write_outputs(result, Path(out), reference=fixes)
+    console = _wide_console()
+    console.print(
+        f"fused {len(result.gps.t)} fixes over {len(result.solution.trajectory.t)} keyframes of {sequence.name}: "
+        f"RMSE against all {summary['reference_fixes']} fixes {summary['rmse_to_gps_m']:.3f} m"
+        + (f", ATE against the ground truth {summary['ate_m']:.3f} m" if summary.get("ate_m") is not None else "")
+    )
+    for item in written:
+        console.print(f"written: {item}")
+
+
+def _read_with_options(dataset: str, path: str, options: list[str]):
+    """A sequence read with ``key=value`` reader options, each checked against the reader's signature."""
+    import inspect
+
+    import yaml
+
+    from learned_imu.datasets import READERS, read_sequence
+
+    if dataset not in READERS:
+        raise typer.BadParameter(f"--dataset: unknown reader {dataset!r}; known: {', '.join(sorted(READERS))}")
+    accepted = set(inspect.signature(READERS[dataset]).parameters) - {"path"}
+    parsed = {}
+    for item in options:
+        key, sep, text = item.partition("=")
+        if not sep or not key:
+            raise typer.BadParameter(f"--reader-option: expected key=value, got {item!r}")
+        if key not in accepted:
+            raise typer.BadParameter(
+                f"--reader-option: {dataset} has no option {key!r}; its options: {', '.join(sorted(accepted))}"
+            )
+        parsed[key] = yaml.safe_load(text)
+    sequence = read_sequence(dataset, path, **parsed)
+    if isinstance(sequence, list):
+        raise typer.BadParameter(f"{path}: the reader split the sequence at gaps; pass on_gap=keep")
+    return sequence
+
+
 @app.command()
 def view(recording: str = typer.Argument(..., help="an .rrd written by demo/ablate-pgo --rrd")) -> None:
     """Open a recording in the Rerun viewer."""

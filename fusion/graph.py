@@ -44,6 +44,7 @@ from fusion.initial import (
     priors_on_first,
     sequential_initial_values,
 )
+from learned_imu.errors import ConfigError
 from learned_imu.io import atomic_file
 
 X, V, B = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V, gtsam.symbol_shorthand.B
@@ -89,7 +90,7 @@ class BiasStates:
     def __post_init__(self):
         for name, value in vars(self).items():
             if not (np.isfinite(value) and value > 0):
-                raise ValueError(f"BiasStates.{name} must be a positive number, got {value!r}")
+                raise ConfigError(f"BiasStates.{name} must be a positive number, got {value!r}")
 
 
 @dataclass(frozen=True, eq=False)

@@ -106,6 +106,9 @@ class PgoOptions:
     # a sample period; fixes inside a gap of the IMU are not used), so that each fused fix has its keyframe
     keyframes: str = "interval"
     gtsam_example: bool = False  # add the GTSAM_EXAMPLE row
+    # with bias states (fusion.graph.BiasStates: per-sample random walk and prior sigmas): each of the four settings
+    # also runs with a bias state per keyframe, as a row "<setting> + bias states"
+    bias_states: BiasStates | None = None
     # (gyro rad/s/sqrt(Hz), acc m/s^2/sqrt(Hz)) sigmas, at least, of a sample that is held across a time gap of the
     # IMU (longer than MAX_GAP_STEPS median steps: KITTI's dropped OXTS packets), in every setting; null: none
     gap_noise_density: tuple[float, float] | None = None
@@ -120,7 +123,13 @@ class PgoOptions:
 
     @property
     def settings(self) -> tuple[PgoSetting, ...]:
-        return SETTINGS + ((GTSAM_EXAMPLE,) if self.gtsam_example else ())
+        twins = ()
+        if self.bias_states is not None:
+            twins = tuple(
+                dataclasses.replace(s, name=f"{s.name} + bias states", bias=self.bias_states, key=f"{s.file_key}_bias")
+                for s in SETTINGS
+            )
+        return SETTINGS + twins + ((GTSAM_EXAMPLE,) if self.gtsam_example else ())
 
 
 def write_exports(

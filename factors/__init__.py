@@ -5,6 +5,7 @@ from factors.export_file import Export, ExportError, from_export, load_export
 from factors.gps import GpsFactor, gps_noise
 from factors.imu import LearnedImuFactor
 from factors.learned_pim import learned_combined_pim, learned_pim
+from factors.pim_from_deltas import PimLayoutError, pim_from_deltas  # the function (the module stays importable)
 
 __all__ = [
     "Export",
@@ -12,6 +13,7 @@ __all__ = [
     "GpsFactor",
     "GraphError",
     "LearnedImuFactor",
+    "PimLayoutError",
     "check_anchored",
     "check_values",
     "solve_or_explain",
@@ -20,4 +22,5 @@ __all__ = [
     "learned_combined_pim",
     "learned_pim",
     "load_export",
+    "pim_from_deltas",
 ]

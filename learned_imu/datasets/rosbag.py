@@ -11,6 +11,11 @@ Conventions:
   the pose's child frame must be the IMU frame. Odometry velocity: ``twist.linear`` is in the child frame
   (nav_msgs definition) and is rotated to the world frame; ``use_twist=False`` (and the PoseStamped types)
   differentiate positions instead (``_assemble``).
+- Optional GPS from ``gps_topic``: ``sensor_msgs/NavSatFix`` (REP 145 / sensor_msgs): fixes whose
+  ``status.status`` is ``STATUS_NO_FIX`` (-1) are skipped; latitude / longitude (degrees, WGS-84) and altitude (m)
+  go to a local east / north / up frame at the first kept fix through pymap3d; the one-sigma per axis is the square
+  root of ``position_covariance``'s diagonal (ENU, m^2), or ``gps_sigma`` where the covariance type is
+  ``COVARIANCE_TYPE_UNKNOWN`` (0). This local frame is not a ground truth's frame (no alignment is made).
 - Gravity ``[0, 0, -gravity]``, default 9.81 m/s^2. IMU cropped to the GT span as in every reader.
 """
 
@@ -24,7 +29,7 @@ import numpy as np
 from learned_imu.datasets._assemble import VEL_WINDOW_S, GtSamples, build_sequence
 from learned_imu.datasets._checks import check_timestamps
 from learned_imu.errors import DataError
-from learned_imu.sequence import ImuSequence
+from learned_imu.sequence import GpsFixes, ImuSequence
 
 logger = logging.getLogger(__name__)
 
@@ -32,6 +37,9 @@ GRAVITY = 9.81
 IMU_TYPE = "sensor_msgs/msg/Imu"
 ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
 POSE_TYPES = ("geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/PoseWithCovarianceStamped")
+NAVSATFIX_TYPE = "sensor_msgs/msg/NavSatFix"
+NO_FIX = -1  # sensor_msgs/NavSatStatus STATUS_NO_FIX
+DEFAULT_GPS_SIGMA_M = 1.0
 STAMPS = ("header", "bag")
 
 
@@ -50,8 +58,10 @@ def read_rosbag(
     check_frame: bool = True,
     check_units: bool = True,
     vel_window_s: float = VEL_WINDOW_S,
+    gps_topic: str | None = None,
+    gps_sigma: float = DEFAULT_GPS_SIGMA_M,
 ) -> ImuSequence | list[ImuSequence]:
-    """Read IMU (and optional ground truth) from a bag (see the module docstring for the conventions).
+    """Read IMU (and optional ground truth and GPS) from a bag (see the module docstring for the conventions).
 
     Args:
         path: ``.bag`` (ROS 1), a ROS 2 bag folder, or a ``.mcap`` / ``.db3`` file.
@@ -62,6 +72,8 @@ def read_rosbag(
         gravity: magnitude of gravity, m/s^2 (world z-up).
         name: sequence name (default: the bag's stem).
         on_duplicate, on_gap, crop_to_gt, check_frame, check_units, vel_window_s: see ``_checks`` / ``_assemble``.
+        gps_topic: a ``sensor_msgs/NavSatFix`` topic; None: no GPS.
+        gps_sigma: one-sigma per axis (m) of fixes whose covariance type is unknown.
     """
     from rosbags.highlevel import AnyReader, AnyReaderError
     from rosbags.typesys import Stores, get_typestore
@@ -82,6 +94,10 @@ def read_rosbag(
                 kind = _require_topic(path, types, gt_topic, (ODOMETRY_TYPE, *POSE_TYPES), "gt_topic")
                 rows = _collect(reader, gt_topic, stamp, _odometry_row if kind == ODOMETRY_TYPE else _pose_row)
                 gt = _ground_truth(path, gt_topic, rows, use_twist and kind == ODOMETRY_TYPE, on_duplicate)
+            gps = None
+            if gps_topic is not None:
+                _require_topic(path, types, gps_topic, (NAVSATFIX_TYPE,), "gps_topic")
+                gps = _gps(path, gps_topic, _collect(reader, gps_topic, stamp, _navsatfix_row), gps_sigma)
     except AnyReaderError as err:
         raise DataError(path, "bag", f"cannot read: {err}") from err
     if imu.shape[0] == 0:
@@ -98,6 +114,7 @@ def read_rosbag(
         imu[:, 4:7],
         np.array([0.0, 0.0, -gravity]),
         gt=gt,
+        gps=gps,
         on_gap=on_gap,
         crop_to_gt=crop_to_gt,
         check_frame=check_frame,
@@ -154,6 +171,34 @@ def _pose_row(msg) -> list[float]:
 
 def _odometry_row(msg) -> list[float]:
     return [*_pose_values(msg.pose.pose), *_xyz(msg.twist.twist.linear)]
+
+
+def _navsatfix_row(msg) -> list[float]:
+    cov = np.asarray(msg.position_covariance, dtype=float).reshape(3, 3)
+    return [msg.status.status, msg.latitude, msg.longitude, msg.altitude, msg.position_covariance_type, *np.diag(cov)]
+
+
+def _gps(path: Path, topic: str, rows: np.ndarray, default_sigma: float) -> GpsFixes:
+    """Fixes in a local ENU frame at the first kept fix (module docstring)."""
+    import pymap3d
+
+    if not (np.isfinite(default_sigma) and default_sigma > 0):
+        raise DataError(path, "gps_sigma", f"must be a positive sigma in m, got {default_sigma!r}")
+    rows = rows[rows[:, 1] != NO_FIX] if rows.size else rows
+    if rows.shape[0] < 2:
+        raise DataError(path, topic, f"fewer than 2 NavSatFix messages with a fix ({rows.shape[0]})")
+    keep = check_timestamps(rows[:, 0], path, f"{topic}.stamp", on_duplicate="drop")
+    rows = rows[keep]
+    lat, lon, alt = rows[:, 2], rows[:, 3], rows[:, 4]
+    if not np.all(np.isfinite(rows[:, 2:5])) or (np.abs(lat) > 90).any() or (np.abs(lon) > 180).any():
+        raise DataError(path, f"{topic}.latitude", "fixes must hold finite latitude / longitude in degrees")
+    pos = np.stack(pymap3d.geodetic2enu(lat, lon, alt, lat[0], lon[0], alt[0]), axis=1)
+    variance = rows[:, 6:9]
+    known = rows[:, 5] > 0  # COVARIANCE_TYPE_UNKNOWN = 0
+    sigma = np.where(known[:, None], np.sqrt(np.clip(variance, 0, None)), default_sigma)
+    if not np.all(sigma > 0):
+        raise DataError(path, f"{topic}.position_covariance", "a fix with a known covariance has a zero variance")
+    return GpsFixes(t=rows[:, 0], pos=pos, sigma=sigma)
 
 
 def _ground_truth(path: Path, topic: str, rows: np.ndarray, use_twist: bool, on_duplicate: str) -> GtSamples:

@@ -63,3 +63,71 @@ def test_gps_csv_layouts_and_errors(tmp_path):
         bad.write_text(text)
         with pytest.raises(DataError, match=message):
             read_gps_csv(bad)
+
+
+def write_bag_with_navsatfix(path, seq, fixes_every: int, sigma: float):
+    """A ROS 2 bag (MCAP): the sequence's IMU on /imu and NavSatFix on /fix from its ground truth, every
+    ``fixes_every`` samples, with a diagonal ENU covariance; one extra message without a fix."""
+    import pymap3d
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    types = ts.types
+    vec3, quat = types["geometry_msgs/msg/Vector3"], types["geometry_msgs/msg/Quaternion"]
+
+    def header(t):
+        ns = int(round(t * 1e9))
+        return types["std_msgs/msg/Header"](
+            stamp=types["builtin_interfaces/msg/Time"](sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000),
+            frame_id="imu",
+        )
+
+    rng = np.random.default_rng(0)
+    origin = None
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        imu = writer.add_connection("/imu", "sensor_msgs/msg/Imu", typestore=ts)
+        fix = writer.add_connection("/fix", "sensor_msgs/msg/NavSatFix", typestore=ts)
+        for k, t in enumerate(seq.t):
+            msg = types["sensor_msgs/msg/Imu"](
+                header=header(t), orientation=quat(x=0.0, y=0.0, z=0.0, w=1.0), orientation_covariance=np.zeros(9),
+                angular_velocity=vec3(*seq.gyro[k]), angular_velocity_covariance=np.zeros(9),
+                linear_acceleration=vec3(*seq.acc[k]), linear_acceleration_covariance=np.zeros(9),
+            )  # fmt: skip
+            writer.write(imu, int(t * 1e9), ts.serialize_cdr(msg, "sensor_msgs/msg/Imu"))
+            if k % fixes_every == 0 or k == 5:
+                status = -1 if k == 5 else 0  # sample 5: STATUS_NO_FIX, must be skipped
+                noisy = seq.gt.pos[k] + rng.normal(0.0, sigma, 3)
+                origin = noisy if origin is None and status == 0 else origin
+                glat, glon, galt = pymap3d.enu2geodetic(*noisy, 49.0, 8.4, 110.0)
+                msg = types["sensor_msgs/msg/NavSatFix"](
+                    header=header(t), status=types["sensor_msgs/msg/NavSatStatus"](status=status, service=1),
+                    latitude=float(glat), longitude=float(glon), altitude=float(galt),
+                    position_covariance=np.diag([sigma**2] * 3).ravel(), position_covariance_type=2,
+                )  # fmt: skip
+                writer.write(fix, int(t * 1e9) + 1000, ts.serialize_cdr(msg, "sensor_msgs/msg/NavSatFix"))
+    return path, origin  # the first kept fix: the origin of the reader's local ENU frame
+
+
+def test_fuse_a_ros2_bag_with_navsatfix(tmp_path):
+    from learned_imu.datasets import read_sequence
+    from learned_imu.simulator import simulate
+
+    seq = simulate("car", duration_s=30.0, grade="industrial", seed=2)
+    bag, origin = write_bag_with_navsatfix(tmp_path / "drive", seq, fixes_every=200, sigma=0.5)  # 1 Hz at 200 Hz
+    read = read_sequence("rosbag", bag, gps_topic="/fix")
+    assert len(read.gps.t) == 30 and np.allclose(read.gps.sigma, 0.5)  # the no-fix message skipped
+    np.testing.assert_allclose(read.gps.pos[0], 0.0, atol=1e-9)  # ENU at the first fix
+    out = tmp_path / "fused"
+    args = ["fuse", "--dataset", "rosbag", "--path", str(bag), "--reader-option", "gps_topic=/fix",
+            "--gyro-noise-density", "0.0003", "--acc-noise-density", "0.003", "--out", str(out)]  # fmt: skip
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["fused_fixes"] == 30
+    fused = np.loadtxt(out / "fused.tum", comments="#")
+    truth = seq.gt.pos[np.searchsorted(seq.t, fused[:, 0])] - origin  # the truth in the bag's ENU frame
+    gps_error = np.sqrt(np.mean(np.sum((read.gps.pos - truth) ** 2, axis=1)))
+    ate = np.sqrt(np.mean(np.sum((fused[:, 1:4] - truth) ** 2, axis=1)))
+    assert ate < 0.9 * gps_error  # the IMU smooths the 0.5-m fixes: measured 0.72 m against 0.85 m (turn-on biases
+    # of the simulated IMU are not estimated here; Gaussian GPS factors give 0.60 m)

@@ -107,10 +107,10 @@ writing = None  # the checkpoint being saved
 def die():
     os.kill(os.getpid(), signal.SIGKILL)
 
-def save_checkpoint(path, config, trainer_state, best):  # between the writes: after the first one of the epoch
+def save_checkpoint(path, config, trainer_state, best, *rest):  # between the writes: after the epoch's first
     global writing
     writing = path.name
-    out = real_save(path, config, trainer_state, best)
+    out = real_save(path, config, trainer_state, best, *rest)
     if MOMENT == "between_writes" and path.name == "last.pt" and trainer_state["epochs_done"] == KILL_EPOCH + 1:
         die()
     return out

@@ -36,6 +36,7 @@ from factors.gps import ROBUST_LOSSES
 from fusion.graph import Trajectory
 from fusion.initial import priors_on_first
 from learned_imu.errors import AirImuError, InputError
+from learned_imu.experiment import MAX_RATE_MISMATCH
 from learned_imu.model import DEFAULT_ACC_COV, DEFAULT_GYRO_COV, AirImuNet
 
 log = logging.getLogger(__name__)
@@ -46,6 +47,7 @@ SMOOTHERS = ("isam2", "fixed_lag")
 # 13 ms mean update after 5 minutes against 3.8 ms). GTSAM's default threshold 0.1 left 8 mm between the online and
 # the batch LM solution of a 60 s simulated flight; 0.01 leaves 2 mm.
 RELINEARIZE_THRESHOLD = 0.01
+RATE_CHECK_SAMPLES = 20  # samples seen before the stream's rate is compared with the model's training rate
 
 
 @dataclass(frozen=True, eq=False)
@@ -141,6 +143,7 @@ class OnlineFusion:
         self._gps_for: dict[int, list[GpsFactor]] = {}  # fixes of keyframes not in the graph yet
         self._frozen: dict[int, tuple[gtsam.Pose3, np.ndarray]] = {}  # keyframes that left the fixed-lag window
         self._flushed = False
+        self._rate_checked = False
 
     @property
     def keyframes(self) -> int:
@@ -336,6 +339,15 @@ class OnlineFusion:
         if np.any(steps <= 0):
             bad = t[int(np.argmax(steps <= 0)) + 1 - len(before)]
             raise InputError(f"add_imu: timestamps must be strictly increasing; t={bad} s is not")
+        trained = getattr(self._model, "trained_on", None)
+        if trained and not self._rate_checked and len(self._t) + len(t) >= RATE_CHECK_SAMPLES:
+            self._rate_checked = True  # the model's training rate against the stream's (as learned_imu's correct())
+            rate = 1.0 / float(np.median(np.diff(np.concatenate([self._t, t]))))
+            if abs(rate / trained["rate_hz"] - 1.0) > MAX_RATE_MISMATCH:
+                raise InputError(
+                    f"add_imu: IMU sampled at {rate:.1f} Hz, but the model was trained at {trained['rate_hz']:.1f} Hz "
+                    f"({', '.join(trained['datasets'])}): resample the stream or train a model at this rate"
+                )
         return t, raw
 
 

@@ -192,6 +192,11 @@ def test_bad_input_is_refused_by_name(sequence):
         OnlineFusion(small_model().train(), seq.gravity, first_state(seq))
     with pytest.raises(InputError, match="unknown smoother"):
         OnlineFusion(None, seq.gravity, first_state(seq), smoother="ekf")
+    slow = small_model().eval()
+    slow.trained_on = {"rate_hz": 100.0, "datasets": ["kitti_raw"]}  # as model_from_checkpoint sets it
+    fusion = OnlineFusion(slow, seq.gravity, first_state(seq))
+    with pytest.raises(InputError, match=r"sampled at 200.0 Hz, but the model was trained at 100.0 Hz \(kitti_raw\)"):
+        fusion.add_imu(seq.t[:30], seq.gyro[:30], seq.acc[:30])
 
 
 def test_isam2_example_runs_and_fuses():

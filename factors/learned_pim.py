@@ -27,6 +27,7 @@ import numpy as np
 # means the samples are not m/s^2 of specific force (swapped with the gyro, or in g)
 MIN_MEDIAN_SPECIFIC_FORCE = 3.0  # m/s^2
 MIN_SAMPLES_FOR_GRAVITY_CHECK = 10
+MAX_COV = {"gyro_cov": 1.0, "acc_cov": 100.0}  # sigma 1 rad/s/sqrt(Hz), 10 m/s^2/sqrt(Hz): no IMU is this noisy
 
 
 def learned_pim(
@@ -151,4 +152,10 @@ def _densities(name: str, value, n: int) -> np.ndarray:
         raise ValueError(f"learned_pim: {name} must be a float, (3,) or (N, 3); got {np.shape(value)}") from None
     if not np.all(np.isfinite(out)) or np.any(out < 0):
         raise ValueError(f"learned_pim: {name} must be finite and non-negative (a noise density, sigma^2)")
+    limit = MAX_COV[name]
+    if np.any(out > limit):
+        raise ValueError(
+            f"learned_pim: {name} {float(out.max()):.3g} is above {limit:g}, orders of magnitude beyond any IMU: "
+            "a sigma^2 is expected (rad^2/s, m^2/s^3); is it in other units?"
+        )
     return out

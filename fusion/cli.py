@@ -122,9 +122,7 @@ def fuse(
 
     if gps_every < 1:
         raise typer.BadParameter(f"--gps-every must be >= 1, got {gps_every}")
-    for flag, value in (("--gyro-noise-density", gyro_noise_density), ("--acc-noise-density", acc_noise_density)):
-        if not (math.isfinite(value) and value > 0):
-            raise typer.BadParameter(f"{flag} must be a positive sigma, got {value!r}")
+    _check_noise_flags(gyro_noise_density, acc_noise_density)
     keyframe_s = None
     if keyframes != "fixes":
         try:
@@ -157,6 +155,17 @@ def fuse(
     )
     for item in written:
         console.print(f"written: {item}")
+
+
+def _check_noise_flags(gyro: float, acc: float) -> None:
+    from learned_imu.config import check_noise_density
+    from learned_imu.errors import ConfigError
+
+    try:
+        check_noise_density("gyro", gyro, "--gyro-noise-density")
+        check_noise_density("acc", acc, "--acc-noise-density")
+    except ConfigError as error:
+        raise typer.BadParameter(str(error)) from None
 
 
 def _read_with_options(dataset: str, path: str, options: list[str]):
@@ -437,9 +446,7 @@ def export(
     else:
         if gyro_noise_density is None or acc_noise_density is None:
             raise typer.BadParameter("without --checkpoint, give --gyro-noise-density and --acc-noise-density")
-        for flag, value in (("--gyro-noise-density", gyro_noise_density), ("--acc-noise-density", acc_noise_density)):
-            if not (math.isfinite(value) and value > 0):
-                raise typer.BadParameter(f"{flag} must be a positive sigma, got {value!r}")
+        _check_noise_flags(gyro_noise_density, acc_noise_density)
         arrays = (gyro_noise_density**2, acc_noise_density**2, None, None)
     written = export_preintegration(out, sequence, index, *arrays)
     Console().print(f"{len(index) - 1} keyframe intervals of {sequence.name} written to {written}")

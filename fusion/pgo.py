@@ -29,6 +29,7 @@ import numpy as np
 
 from factors import load_export
 from fusion.graph import BiasStates, FusionSettings, Gps, Solution, build_graph, solve
+from learned_imu.config import check_noise_density
 from learned_imu.errors import ConfigError
 from learned_imu.export import export_preintegration, keyframes_every, nearest_samples
 from learned_imu.model import Correction
@@ -118,6 +119,11 @@ class PgoOptions:
             raise ConfigError(f"options.score_span must be one of {', '.join(SCORE_SPANS)}, got {self.score_span!r}")
         if self.keyframes not in KEYFRAMES:
             raise ConfigError(f"options.keyframes must be one of {', '.join(KEYFRAMES)}, got {self.keyframes!r}")
+        check_noise_density("gyro", self.fixed_gyro_noise_density, "options.fixed_gyro_noise_density")
+        check_noise_density("acc", self.fixed_acc_noise_density, "options.fixed_acc_noise_density")
+        if self.gap_noise_density is not None:
+            check_noise_density("gyro", self.gap_noise_density[0], "options.gap_noise_density[0]")
+            check_noise_density("acc", self.gap_noise_density[1], "options.gap_noise_density[1]")
         if self.gps_source not in GPS_SOURCES:
             raise ConfigError(f"options.gps_source must be one of {', '.join(GPS_SOURCES)}, got {self.gps_source!r}")
 

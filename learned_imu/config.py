@@ -13,6 +13,7 @@ Units are in the field names or comments: seconds, samples, m/s^2, rad/s; noise 
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from dataclasses import dataclass, field
@@ -201,6 +202,22 @@ RENAMED_KEYS = {
     "fixed_gyro_density": ("fixed_gyro_noise_density", "sigma, rad/s/sqrt(Hz)"),
     "fixed_acc_density": ("fixed_acc_noise_density", "sigma, m/s^2/sqrt(Hz)"),
 }
+
+
+# Plausible IMU noise, orders of magnitude around every real sensor (navigation-grade gyros ~5e-7 rad/s/sqrt(Hz),
+# consumer MEMS ~1e-2): a sigma outside these is a sigma^2 given as sigma (or the reverse), or another unit.
+NOISE_DENSITY_RANGE = {"gyro": (1e-7, 1.0), "acc": (1e-6, 10.0)}  # sigma: rad/s/sqrt(Hz), m/s^2/sqrt(Hz)
+
+
+def check_noise_density(sensor: str, sigma: float, where: str) -> None:
+    """A ``ConfigError`` naming ``where`` if ``sigma`` (a ``*_noise_density``) is outside ``NOISE_DENSITY_RANGE``."""
+    low, high = NOISE_DENSITY_RANGE[sensor]
+    unit = "rad/s/sqrt(Hz)" if sensor == "gyro" else "m/s^2/sqrt(Hz)"
+    if not (math.isfinite(sigma) and low <= sigma <= high):
+        hint = " (a variance, sigma^2? give sigma)" if 0 < sigma < low else ""
+        raise ConfigError(
+            f"{where}: {sigma!r} is not a {sensor} noise density sigma in [{low:g}, {high:g}] {unit}{hint}"
+        )
 
 
 def renamed(data: dict, where: str = "") -> dict:

@@ -68,6 +68,12 @@ def test_swapped_gyro_and_acc_are_named():
         learned_pim(gyro, acc / 9.81, DT, gyro_density, acc_density, 9.81)
 
 
+def test_a_cov_beyond_any_imu_is_refused():
+    gyro, acc, gyro_density, acc_density = samples(20, max_rate=0.5, seed=7)
+    with pytest.raises(ValueError, match="acc_cov 200 is above 100"):
+        learned_pim(gyro, acc, DT, gyro_density, 200.0, 9.81)
+
+
 def test_negative_density_raises():
     gyro, acc, gyro_density, acc_density = samples(10, max_rate=0.5, seed=3)
     with pytest.raises(ValueError, match="non-negative"):

@@ -135,3 +135,15 @@ def test_renamed_keys_name_the_new_key_and_old_checkpoints_still_load(tmp_path):
     with torch.no_grad():
         out = loaded(torch.zeros(1, 9, 3), torch.zeros(1, 9, 3))
     assert torch.allclose(out.gyro_cov, torch.full_like(out.gyro_cov, 4e-8), rtol=1e-5)
+
+
+def test_a_variance_given_as_a_noise_density_sigma_is_refused(tmp_path):
+    from fusion.config import load_pgo_config
+
+    pgo = tmp_path / "pgo.yaml"
+    pgo.write_text("name: p\nexperiment: e.yaml\nrun: r\noptions: {fixed_gyro_noise_density: 1.6e-8}\n")
+    with pytest.raises(ConfigError, match=r"pgo.yaml.*fixed_gyro_noise_density.*a variance, sigma\^2\? give sigma"):
+        load_pgo_config(pgo)
+    pgo.write_text("name: p\nexperiment: e.yaml\nrun: r\noptions: {gap_noise_density: [0.06, 70.0]}\n")
+    with pytest.raises(ConfigError, match=r"gap_noise_density\[1\]: 70.0 is not an? acc noise density"):
+        load_pgo_config(pgo)

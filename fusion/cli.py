@@ -143,7 +143,7 @@ def fuse(
         from learned_imu.checkpoint import model_from_checkpoint
 
         model = model_from_checkpoint(checkpoint)[0]
-    states = BiasStates(1.67e-4, 2.91e-6, 0.1, 0.01) if bias else None
+    states = BiasStates(1.67e-4, 2.91e-6, 0.1, 0.01, factor="combined") if bias else None  # CombinedImuFactor
     result = fuse(sequence, used, model, keyframe_s=keyframe_s, bias=states,
                   noise_density=(gyro_noise_density, acc_noise_density))  # fmt: skip
     summary, written = write_outputs(result, Path(out), reference=fixes)

@@ -86,9 +86,17 @@ class BiasStates:
     gyro_walk_sigma: float
     acc_prior_sigma: float
     gyro_prior_sigma: float
+    # "between": gtsam.ImuFactor per interval and a BetweenFactorConstantBias of the random walk (the example's
+    # graph); "combined": gtsam.CombinedImuFactor, whose preintegration carries the same random walk (as a
+    # continuous-time density, walk_sigma^2 / dt) and the learned per-sample noise (factors.learned_combined_pim)
+    factor: str = "between"
 
     def __post_init__(self):
+        if self.factor not in ("between", "combined"):
+            raise ConfigError(f"BiasStates.factor must be 'between' or 'combined', got {self.factor!r}")
         for name, value in vars(self).items():
+            if name == "factor":
+                continue
             if not (np.isfinite(value) and value > 0):
                 raise ConfigError(f"BiasStates.{name} must be a positive number, got {value!r}")
 
@@ -229,11 +237,20 @@ def _with_bias_states(values: gtsam.Values, export: Export, bias: BiasStates, ba
     """The graph of ``others`` (GPS factors and priors), the export's IMU factors on ``B(k)``, the bias random walk
     and prior (``BiasStates``); ``values`` with every ``B(k)`` at zero in place of the constant ``B(0)``."""
     graph = gtsam.NonlinearFactorGraph()
-    for factor in [*from_export(export.path, X, V, B, backend)[0], *others]:
-        graph.add(factor)
     zero = gtsam.imuBias.ConstantBias()
     samples = np.diff(export.keyframe_index)
-    for k, n in enumerate(samples):
+    if bias.factor == "combined":
+        dt = float(np.median(np.diff(export.arrays["t"])))
+        params = gtsam.PreintegrationCombinedParams(export.gravity)
+        params.setIntegrationCovariance(np.zeros((3, 3)))
+        params.setBiasAccCovariance(np.eye(3) * bias.acc_walk_sigma**2 / dt)
+        params.setBiasOmegaCovariance(np.eye(3) * bias.gyro_walk_sigma**2 / dt)
+        imu_factors = from_export(export, X, V, B, "gtsam", factor="combined", params=params)[0]
+    else:
+        imu_factors = from_export(export, X, V, B, backend)[0]
+    for factor in [*imu_factors, *others]:
+        graph.add(factor)
+    for k, n in enumerate(samples if bias.factor == "between" else ()):
         walk = np.sqrt(n) * np.array([bias.acc_walk_sigma] * 3 + [bias.gyro_walk_sigma] * 3)
         graph.add(gtsam.BetweenFactorConstantBias(B(k), B(k + 1), zero, gtsam.noiseModel.Diagonal.Sigmas(walk)))
     prior = np.array([bias.acc_prior_sigma] * 3 + [bias.gyro_prior_sigma] * 3)

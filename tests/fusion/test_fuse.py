@@ -131,3 +131,7 @@ def test_fuse_a_ros2_bag_with_navsatfix(tmp_path):
     ate = np.sqrt(np.mean(np.sum((fused[:, 1:4] - truth) ** 2, axis=1)))
     assert ate < 0.9 * gps_error  # the IMU smooths the 0.5-m fixes: measured 0.72 m against 0.85 m (turn-on biases
     # of the simulated IMU are not estimated here; Gaussian GPS factors give 0.60 m)
+    result = CliRunner().invoke(app, [*args[:-1], str(tmp_path / "biased"), "--bias"])  # CombinedImuFactors
+    assert result.exit_code == 0, result.output
+    fused = np.loadtxt(tmp_path / "biased" / "fused.tum", comments="#")
+    assert np.sqrt(np.mean(np.sum((fused[:, 1:4] - truth) ** 2, axis=1))) < 0.9 * gps_error

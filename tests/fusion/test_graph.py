@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -149,3 +151,11 @@ def test_bias_states_match_a_graph_of_gtsams_own_preintegration(tmp_path):
     assert ate_m(ours, truth) < 0.5 * ate_m(without, truth)  # estimating the bias pays on a biased IMU
     with pytest.raises(ValueError, match="acc_walk_sigma"):
         BiasStates(0.0, 1e-5, 1.0, 0.1)
+
+    # the same bias model through gtsam.CombinedImuFactor (the random walk inside the preintegration)
+    combined = dataclasses.replace(bias, factor="combined")
+    graph, values = build_graph(export, fuse, settings, bias=combined)
+    assert sum(isinstance(graph.at(i), gtsam.CombinedImuFactor) for i in range(graph.size())) == intervals
+    solved = solve(graph, values, export.keyframe_t, settings)
+    assert ate_m(solved, truth) < 0.5 * ate_m(without, truth)
+    np.testing.assert_allclose(solved.trajectory.pos, ours.trajectory.pos, atol=0.05)  # two models of one walk

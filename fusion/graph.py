@@ -75,6 +75,21 @@ class FusionSettings:
     absolute_error_tol: float = 1e-6
     init_window: int = 100  # keyframes per window of the sequential initialisation
 
+    def __post_init__(self):
+        for key in ("prior_rot_sigma_rad", "prior_pos_sigma_m", "prior_vel_sigma_m_s"):
+            value = getattr(self, key)
+            if not (np.isfinite(value) and value > 0):
+                raise ConfigError(f"fusion.{key} must be a positive sigma, got {value!r}")
+        for key in ("relative_error_tol", "absolute_error_tol"):
+            value = getattr(self, key)
+            if not (np.isfinite(value) and value >= 0):
+                raise ConfigError(f"fusion.{key} must be a number >= 0, got {value!r}")
+        for key in ("max_iterations", "init_window"):
+            if getattr(self, key) < 1:
+                raise ConfigError(f"fusion.{key} must be a whole number >= 1, got {getattr(self, key)!r}")
+        if len(self.lever_arm_m) != 3 or not all(np.isfinite(self.lever_arm_m)):
+            raise ConfigError(f"fusion.lever_arm_m must be 3 finite numbers (m), got {list(self.lever_arm_m)!r}")
+
 
 @dataclass(frozen=True)
 class BiasStates:

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -119,6 +120,14 @@ class PgoOptions:
             raise ConfigError(f"options.score_span must be one of {', '.join(SCORE_SPANS)}, got {self.score_span!r}")
         if self.keyframes not in KEYFRAMES:
             raise ConfigError(f"options.keyframes must be one of {', '.join(KEYFRAMES)}, got {self.keyframes!r}")
+        if not (self.gps_hz and all(math.isfinite(r) and r > 0 for r in self.gps_hz)):
+            raise ConfigError(f"options.gps_hz must be a list of positive rates (Hz), got {list(self.gps_hz)!r}")
+        for key in ("gps_sigma_m", "keyframe_interval_s"):
+            value = getattr(self, key)
+            if not (math.isfinite(value) and value > 0):
+                raise ConfigError(f"options.{key} must be a positive number, got {value!r}")
+        if self.seeds < 1:
+            raise ConfigError(f"options.seeds must be a whole number >= 1, got {self.seeds!r}")
         check_noise_density("gyro", self.fixed_gyro_noise_density, "options.fixed_gyro_noise_density")
         check_noise_density("acc", self.fixed_acc_noise_density, "options.fixed_acc_noise_density")
         if self.gap_noise_density is not None:

@@ -25,6 +25,26 @@ import yaml
 from learned_imu.errors import ConfigError
 
 DEVICES = ("cpu", "cuda", "auto")
+INTERVAL_UNITS = ("s", "frames")  # learned_imu.evaluate's
+
+
+def _check(record, key: str, ok, expected: str) -> None:
+    """A ``ConfigError`` naming ``key`` (dotted) when ``ok(value)`` is false: range checks at load time."""
+    value = getattr(record, key.split(".")[-1])
+    try:
+        good = bool(ok(value))
+    except TypeError:
+        good = False
+    if not good:
+        raise ConfigError(f"{key} must be {expected}, got {value!r}")
+
+
+def _positive(x) -> bool:
+    return math.isfinite(x) and x > 0
+
+
+def _non_negative(x) -> bool:
+    return math.isfinite(x) and x >= 0
 
 
 @dataclass(frozen=True)
@@ -77,6 +97,16 @@ class ModelConfig:
     init_gyro_cov: float = 1.6968e-4**2  # noise density of the untrained model, sigma^2: rad^2/s
     init_acc_cov: float = 2.0e-3**2  # m^2/s^3
 
+    def __post_init__(self):
+        for key in ("conv_channels", "gru_sizes"):
+            _check(self, f"model.{key}", lambda v: all(int(c) >= 1 for c in v), "a list of positive sizes")
+        _check(self, "model.conv_channels", lambda v: len(v) >= 1, "at least one convolution")
+        for key in ("kernel_size", "stride", "decoder_hidden"):
+            _check(self, f"model.{key}", lambda v: v >= 1, "a positive whole number")
+        _check(self, "model.dropout", lambda v: 0.0 <= v < 1.0, "in [0, 1)")
+        for key in ("acc_scale_m_s2", "gyro_scale_rad_s", "init_gyro_cov", "init_acc_cov"):
+            _check(self, f"model.{key}", _positive, "a positive number")
+
 
 @dataclass(frozen=True)
 class LossConfig:
@@ -88,6 +118,11 @@ class LossConfig:
     covariance: float = 1e-3
     huber_delta: float = 0.005
     covariance_trains_corrections: bool = False
+
+    def __post_init__(self):
+        for key in ("rotation", "position", "velocity", "covariance"):
+            _check(self, f"loss.{key}", _non_negative, "a weight >= 0")
+        _check(self, "loss.huber_delta", _positive, "a positive number")
 
 
 @dataclass(frozen=True)
@@ -121,6 +156,15 @@ class TrainConfig:
     def __post_init__(self):
         if self.device not in DEVICES:
             raise ConfigError(f"train.device must be one of {', '.join(DEVICES)}, got {self.device!r}")
+        _check(self, "train.window", lambda v: v >= 2, "at least 2 samples")
+        _check(self, "train.every", lambda v: 1 <= v <= self.window, f"in [1, train.window = {self.window}]")
+        for key in ("stride", "context", "plateau_patience", "early_stop_patience", "calibration_steps"):
+            _check(self, f"train.{key}", lambda v: v >= 0, "a whole number >= 0")
+        for key in ("batch_size", "epochs"):
+            _check(self, f"train.{key}", lambda v: v >= 1, "a whole number >= 1")
+        _check(self, "train.lr", _positive, "a positive number")
+        _check(self, "train.weight_decay", _non_negative, "a number >= 0")
+        _check(self, "train.plateau_factor", lambda v: 0.0 < v < 1.0, "in (0, 1)")
 
 
 @dataclass(frozen=True)
@@ -131,6 +175,11 @@ class EvaluationConfig:
     interval: float = 1.0
     interval_unit: str = "s"
     frames: int = 10
+
+    def __post_init__(self):
+        _check(self, "evaluation.interval_unit", lambda v: v in INTERVAL_UNITS, f"one of {', '.join(INTERVAL_UNITS)}")
+        _check(self, "evaluation.interval", _positive, "a positive number")
+        _check(self, "evaluation.frames", lambda v: v >= 0, "a whole number >= 0 (0: not scored)")
 
 
 @dataclass(frozen=True)

@@ -147,3 +147,45 @@ def test_a_variance_given_as_a_noise_density_sigma_is_refused(tmp_path):
     pgo.write_text("name: p\nexperiment: e.yaml\nrun: r\noptions: {gap_noise_density: [0.06, 70.0]}\n")
     with pytest.raises(ConfigError, match=r"gap_noise_density\[1\]: 70.0 is not an? acc noise density"):
         load_pgo_config(pgo)
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        ("train: {lr: 0}\n", r"train.lr must be a positive number, got 0.0"),
+        ("train: {lr: .nan}\n", r"train.lr must be a positive number"),
+        ("train: {batch_size: 0}\n", r"train.batch_size must be a whole number >= 1"),
+        ("train: {window: 200, every: 300}\n", r"train.every must be in \[1, train.window = 200\]"),
+        ("train: {epochs: -1}\n", r"train.epochs must be a whole number >= 1"),
+        ("train: {plateau_factor: 1.0}\n", r"train.plateau_factor must be in \(0, 1\)"),
+        ("model: {dropout: 1.5}\n", r"model.dropout must be in \[0, 1\)"),
+        ("evaluation: {interval: 0}\n", r"evaluation.interval must be a positive number"),
+        ("evaluation: {interval_unit: minutes}\n", r"evaluation.interval_unit must be one of s, frames"),
+        ("loss: {huber_delta: -1}\n", r"loss.huber_delta must be a positive number"),
+    ],
+)
+def test_out_of_range_values_are_named_at_load_time(tmp_path, extra, message):
+    path = write(tmp_path, MINIMAL + extra)
+    with pytest.raises(ConfigError, match=message) as info:
+        load_config(path)
+    assert str(path) in str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ("options: {gps_sigma_m: 0}", r"options.gps_sigma_m must be a positive number"),
+        ("options: {gps_hz: [1.0, -0.1]}", r"options.gps_hz must be a list of positive rates"),
+        ("options: {seeds: 0}", r"options.seeds must be a whole number >= 1"),
+        ("fusion: {prior_pos_sigma_m: 0}", r"fusion.prior_pos_sigma_m must be a positive sigma"),
+        ("fusion: {max_iterations: 0}", r"fusion.max_iterations must be a whole number >= 1"),
+    ],
+)
+def test_out_of_range_pgo_values_are_named(tmp_path, options, message):
+    from fusion.config import load_pgo_config
+
+    pgo = tmp_path / "pgo.yaml"
+    pgo.write_text(f"name: p\nexperiment: e.yaml\nrun: r\n{options}\n")
+    with pytest.raises(ConfigError, match=message) as info:
+        load_pgo_config(pgo)
+    assert str(pgo) in str(info.value)

@@ -29,3 +29,7 @@ class ConfigError(AirImuError, ValueError):
 
 class DependencyError(AirImuError, ImportError):
     """An optional dependency that a requested feature needs is not installed; the message names the extra."""
+
+
+class FolderBusyError(AirImuError, RuntimeError):
+    """Another process is writing the same run folder; the message names the folder and that process."""

@@ -35,7 +35,7 @@ from learned_imu.config import ExperimentConfig, SequenceConfig, resolve_device,
 from learned_imu.distributed import World, agree, barrier, check_batch_size, is_writer
 from learned_imu.errors import ConfigError, InputError
 from learned_imu.evaluate import Evaluation, evaluate
-from learned_imu.io import atomic_file, remove_temporaries
+from learned_imu.io import atomic_file, folder_lock, remove_temporaries
 from learned_imu.losses import LossWeights
 from learned_imu.model import AirImuNet, Correction, correct_sequence, device_of
 from learned_imu.sequence import ImuSequence
@@ -167,8 +167,15 @@ def train_run(
     without the covariance loss (and skips the covariance propagation). ``world``: this process's rank in a
     ``torchrun`` job (``learned_imu.distributed.process_group``); every rank calls this and returns the summary."""
     folder = Path(folder)
+    check_batch_size(config.train.batch_size, world)  # before anything is written
+    if not is_writer(world):
+        return _train_run(config, folder, progress, world)
+    with folder_lock(folder):  # one writer per run folder: a second airimu train there is refused, naming this one
+        return _train_run(config, folder, progress, world)
+
+
+def _train_run(config: ExperimentConfig, folder: Path, progress: bool, world: World | None) -> RunSummary:
     writer = is_writer(world)
-    check_batch_size(config.train.batch_size, world)
     if writer:
         folder.mkdir(parents=True, exist_ok=True)
         for stale in remove_temporaries(folder, RUN_FILES):  # a killed run's unfinished write

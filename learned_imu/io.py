@@ -12,6 +12,41 @@ from contextlib import contextmanager
 from pathlib import Path
 
 TEMP_SUFFIX = ".tmp"  # temporary files are ".<target name>.<random>.tmp" beside the target
+LOCK_NAME = ".lock"  # a folder's writer lock (folder_lock)
+
+
+@contextmanager
+def folder_lock(folder: str | Path) -> Iterator[None]:
+    """Hold ``folder``'s writer lock: ``flock`` on ``folder/.lock``, released by the OS however the holder ends (a
+    killed run leaves no stale lock). A second writer gets a ``FolderBusyError`` naming the folder and the process
+    that holds it. POSIX only; elsewhere nothing is locked."""
+    from learned_imu.errors import FolderBusyError
+
+    try:
+        import fcntl
+    except ImportError:  # not POSIX
+        yield
+        return
+    import socket
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    fd = os.open(folder / LOCK_NAME, os.O_RDWR | os.O_CREAT, 0o666 & ~_umask())
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        holder = os.read(fd, 200).decode(errors="replace").strip() or "another process"
+        os.close(fd)
+        raise FolderBusyError(
+            f"{folder}: another writer holds it ({holder}); wait for it to finish or choose another folder"
+        ) from None
+    try:
+        os.ftruncate(fd, 0)
+        os.write(fd, f"process {os.getpid()} on {socket.gethostname()}".encode())
+        yield
+    finally:
+        fcntl.flock(fd, fcntl.LOCK_UN)
+        os.close(fd)
 
 
 @contextmanager

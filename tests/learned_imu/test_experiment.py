@@ -321,3 +321,17 @@ def test_rows_of_the_papers_kitti_drives_get_its_kitti_table():
     assert tables[0].fields == ("roe_deg", "rpe_m") and "KITTI" in tables[0].title
     cells = {c.field: c for c in tables[0].cells if c.setting == "Baseline"}
     assert cells["roe_deg"].paper == 0.2451 and cells["rpe_m"].paper == 0.0715 and cells["rpe_m"].mean == 0.043
+
+
+def test_a_second_writer_of_a_run_folder_is_refused_naming_the_first(tmp_path):
+    import os
+
+    from learned_imu.errors import FolderBusyError
+    from learned_imu.io import folder_lock
+
+    run = tmp_path / "run"
+    with folder_lock(run):  # as a first `airimu train` holds it
+        with pytest.raises(FolderBusyError, match=rf"{run}: another writer holds it \(process {os.getpid()} on "):
+            train_run(with_epochs(TINY, 1), run, progress=False)
+        assert not (run / "config.yaml").exists() and not (run / "last.pt").exists()  # nothing written
+    assert train_run(with_epochs(TINY, 1), run, progress=False).epochs == 1  # free once the holder is gone

@@ -79,7 +79,9 @@ def test_sigkill_at_a_random_moment_resumes_from_the_last_checkpoint(tmp_path):
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         wait_for(lambda: len(metrics(run)) >= 2, proc, "two epochs")
-        time.sleep(rng.uniform(0.0, 1.5))  # an epoch takes ~1-3 s here
+        first = metrics(run)
+        epoch_s = first[1]["seconds"] - first[0]["seconds"]  # 0.1 s on an idle machine, seconds on a busy one
+        time.sleep(rng.uniform(0.0, 1.0) * epoch_s)  # a random moment of the next epoch
         assert proc.poll() is None  # still training: the kill lands mid-run
     finally:
         proc.kill()  # SIGKILL

@@ -25,6 +25,7 @@ from learned_imu.datasets._assemble import VEL_WINDOW_S, GtSamples, build_sequen
 from learned_imu.datasets._checks import DEG, STANDARD_GRAVITY, check_timestamps
 from learned_imu.datasets._rotations import QUAT_ORDERS
 from learned_imu.datasets._table import ColumnKey, read_table
+from learned_imu.errors import DataError
 from learned_imu.sequence import ImuSequence
 
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}  # seconds per unit
@@ -45,6 +46,26 @@ def _keys(keys: Sequence[ColumnKey] | None, count: int, option: str) -> list[Col
     if isinstance(keys, str | int) or len(keys) != count:
         raise ValueError(f"{option} must list {count} columns, got {keys!r}")
     return list(keys)
+
+
+IMU_RATE_HZ = (1.0, 10_000.0)  # any IMU's sample rate; outside it the time column's unit is wrong
+
+
+def _check_time_unit(t: np.ndarray, path: Path, time_unit: str) -> None:
+    """A ``DataError`` when the median step makes no IMU rate: e.g. nanoseconds read as seconds (``time_unit``)."""
+    if len(t) < 2:
+        return
+    rate = 1.0 / float(np.median(np.diff(t)))
+    if IMU_RATE_HZ[0] <= rate <= IMU_RATE_HZ[1]:
+        return
+    fits = [unit for unit, scale in TIME_UNITS.items()
+            if IMU_RATE_HZ[0] <= rate * TIME_UNITS[time_unit] / scale <= IMU_RATE_HZ[1]]  # fmt: skip
+    hint = ""
+    if fits:
+        hint = f"; with time_unit={fits[0]!r} it would be {rate * TIME_UNITS[time_unit] / TIME_UNITS[fits[0]]:.4g} Hz"
+    raise DataError(
+        path, "time", f"read as {time_unit!r} the samples come at {rate:.4g} Hz, no IMU's rate{hint} (time_unit)"
+    )
 
 
 def read_csv(
@@ -103,6 +124,8 @@ def read_csv(
     table.require_finite(imu, "gyro/acc")
     keep = check_timestamps(t * t_scale, path, "time", on_duplicate=on_duplicate, line_of=table.line_of)
     t = t[keep] * t_scale
+    if check_units:
+        _check_time_unit(t, path, time_unit)
     gt = None
     if pos_keys is not None:
         vel = table.columns(vel_keys, "gt_vel")[keep] if vel_keys is not None else None

@@ -154,3 +154,12 @@ def test_wrong_quaternion_columns_are_caught_by_the_norm(v102, tmp_path):
     with pytest.raises(DataError, match="quaternion of ground-truth sample 0 has norm") as err:
         read_csv(path, **{**NAMED, "gt_quat": ("px", "qy", "qz", "qw")})
     assert err.value.field == "gt_quat"
+
+
+def test_time_in_the_wrong_unit_is_named_with_the_unit_that_fits(v102, tmp_path):
+    path = tmp_path / "imu.csv"
+    _write(path, v102)  # time in ms
+    with pytest.raises(DataError, match=r"'time'.*read as 's' the samples come at 0.2 Hz.*'ms' it would be 200 Hz"):
+        read_csv(path, **{**NAMED, "time_unit": "s"})
+    with pytest.raises(DataError, match=r"read as 'ns' the samples come at 2e\+08 Hz.*time_unit='ms'"):
+        read_csv(path, **{**NAMED, "time_unit": "ns"})

@@ -185,7 +185,7 @@ def build_graph(
     export = export if isinstance(export, Export) else load_export(export)
     graph = gtsam.NonlinearFactorGraph()
     bias_key = (lambda k: B(0)) if settings.backend == "gtsam" else None
-    imu_factors, times = from_export(export.path, X, V, bias_key, settings.backend)
+    imu_factors, times = from_export(export, X, V, bias_key, settings.backend)  # the loaded export: no re-read
     for factor in imu_factors:
         graph.add(factor)
     if settings.backend == "gtsam":

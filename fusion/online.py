@@ -36,7 +36,7 @@ from factors.gps import ROBUST_LOSSES
 from fusion.graph import Trajectory
 from fusion.initial import priors_on_first
 from learned_imu.errors import AirImuError, InputError
-from learned_imu.experiment import MAX_RATE_MISMATCH
+from learned_imu.experiment import check_times_rate
 from learned_imu.model import DEFAULT_ACC_COV, DEFAULT_GYRO_COV, AirImuNet
 
 log = logging.getLogger(__name__)
@@ -339,15 +339,9 @@ class OnlineFusion:
         if np.any(steps <= 0):
             bad = t[int(np.argmax(steps <= 0)) + 1 - len(before)]
             raise InputError(f"add_imu: timestamps must be strictly increasing; t={bad} s is not")
-        trained = getattr(self._model, "trained_on", None)
-        if trained and not self._rate_checked and len(self._t) + len(t) >= RATE_CHECK_SAMPLES:
-            self._rate_checked = True  # the model's training rate against the stream's (as learned_imu's correct())
-            rate = 1.0 / float(np.median(np.diff(np.concatenate([self._t, t]))))
-            if abs(rate / trained["rate_hz"] - 1.0) > MAX_RATE_MISMATCH:
-                raise InputError(
-                    f"add_imu: IMU sampled at {rate:.1f} Hz, but the model was trained at {trained['rate_hz']:.1f} Hz "
-                    f"({', '.join(trained['datasets'])}): resample the stream or train a model at this rate"
-                )
+        if self._model is not None and not self._rate_checked and len(self._t) + len(t) >= RATE_CHECK_SAMPLES:
+            self._rate_checked = True  # the model's training rate against the stream's, as correct() checks it
+            check_times_rate(self._model, np.concatenate([self._t, t]), "add_imu")
         return t, raw
 
 

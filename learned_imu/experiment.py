@@ -141,15 +141,19 @@ MAX_RATE_MISMATCH = 0.1  # relative difference of sample rates a model is applie
 def check_rate(model: AirImuNet, sequence: ImuSequence) -> None:
     """An ``InputError`` when ``sequence``'s median rate is more than ``MAX_RATE_MISMATCH`` off the rate the model
     was trained at (``model.trained_on``, from its checkpoint; nothing to check without it)."""
+    check_times_rate(model, sequence.t, sequence.source or sequence.name)
+
+
+def check_times_rate(model: AirImuNet, t: np.ndarray, where: str) -> None:
+    """``check_rate`` for sample times ``t`` (s), the error naming ``where`` (a file, or a stream's method)."""
     trained = getattr(model, "trained_on", None)
-    if not trained or len(sequence) < 2:
+    if not trained or len(t) < 2:
         return
-    rate = 1.0 / float(np.median(np.diff(sequence.t)))
+    rate = 1.0 / float(np.median(np.diff(t)))
     if abs(rate / trained["rate_hz"] - 1.0) > MAX_RATE_MISMATCH:
         raise InputError(
-            f"{sequence.source or sequence.name}: IMU sampled at {rate:.1f} Hz, but the model was trained at "
-            f"{trained['rate_hz']:.1f} Hz ({', '.join(trained['datasets'])}): resample the IMU to that rate or train "
-            "a model on data at this rate"
+            f"{where}: IMU sampled at {rate:.1f} Hz, but the model was trained at {trained['rate_hz']:.1f} Hz "
+            f"({', '.join(trained['datasets'])}): resample the IMU to that rate or train a model on data at this rate"
         )
 
 

@@ -72,6 +72,9 @@ def test_a_cov_beyond_any_imu_is_refused():
     gyro, acc, gyro_density, acc_density = samples(20, max_rate=0.5, seed=7)
     with pytest.raises(ValueError, match="acc_cov 200 is above 100"):
         learned_pim(gyro, acc, DT, gyro_density, 200.0, 9.81)
+    distrusted = acc_density.copy()
+    distrusted[3] = 596.0  # a model's per-sample output may distrust one sample that much: accepted
+    assert learned_pim(gyro, acc, DT, gyro_density, distrusted, 9.81).preintMeasCov()[6, 6] > 1.0
 
 
 def test_negative_density_raises():

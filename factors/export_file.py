@@ -13,6 +13,7 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
+from factors.checks import gravity_problem, preintegration_problem
 from factors.imu import LearnedImuFactor
 from factors.pim_from_deltas import pim_from_deltas
 
@@ -86,12 +87,38 @@ def load_export(path: str | Path) -> Export:
             raise ExportError(f"{path}: field '{field}' contains NaN or Inf")
     if sizes["I"] < 1:
         raise ExportError(f"{path}: field 'keyframe_t' needs at least two keyframes")
+    _check_consistent(path, arrays, sizes["N"])
     return Export(
         path=path,
         name=str(arrays.get("name", path.stem)),
         arrays=arrays,
         **{field: arrays[field] for field in Export.__dataclass_fields__ if field in _SHAPES},
     )
+
+
+def _check_consistent(path: Path, arrays: dict, n: int) -> None:
+    """The checks every backend needs (``factors.checks``): measurements, gravity, keyframes that index the
+    samples in order, positive noise densities."""
+    problem = preintegration_problem(arrays["delta_rot"], arrays["delta_dt"], arrays["delta_cov"])
+    if problem is not None:
+        k, why = problem
+        field = why.split(" ", 1)[0]
+        raise ExportError(f"{path}: field '{field}', interval {k}: {why}")
+    why = gravity_problem(arrays["gravity"])
+    if why:
+        raise ExportError(f"{path}: field 'gravity': {why}")
+    index, kt, t = arrays["keyframe_index"], arrays["keyframe_t"], arrays["t"]
+    if not np.issubdtype(index.dtype, np.integer) or np.any(np.diff(index) <= 0) or index[0] < 0 or index[-1] >= n:
+        raise ExportError(f"{path}: field 'keyframe_index' must be strictly increasing sample indices in [0, {n - 1}]")
+    if np.any(np.diff(t) <= 0):
+        raise ExportError(f"{path}: field 't' must be strictly increasing")
+    if np.abs(kt - t[index]).max() > 1e-6:
+        raise ExportError(f"{path}: field 'keyframe_t' differs from t[keyframe_index] (s)")
+    if np.abs(arrays["delta_dt"] - np.diff(kt)).max() > 1e-6:
+        raise ExportError(f"{path}: field 'delta_dt' differs from the keyframe times' differences (s)")
+    for field in ("gyro_cov", "acc_cov"):
+        if not np.all(arrays[field] > 0):
+            raise ExportError(f"{path}: field '{field}' must hold positive noise densities (sigma^2)")
 
 
 BACKENDS = ("custom", "gtsam")

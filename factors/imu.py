@@ -26,6 +26,8 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
+from factors.checks import preintegration_problem
+
 
 class LearnedImuFactor(gtsam.CustomFactor):
     """IMU factor between (X(i), V(i)) and (X(j), V(j)) with a learned measurement and covariance."""
@@ -50,13 +52,10 @@ class LearnedImuFactor(gtsam.CustomFactor):
         self.delta_vel = _matrix("delta_vel", delta_vel, (3,))
         self.gravity = _matrix("gravity", gravity, (3,))
         self.dt = float(dt)
-        if not np.isfinite(self.dt) or self.dt <= 0:
-            raise ValueError(f"LearnedImuFactor: dt must be positive and finite (s), got {dt!r}")
-        if np.abs(self.delta_rot.T @ self.delta_rot - np.eye(3)).max() > 1e-5:
-            raise ValueError("LearnedImuFactor: delta_rot is not a rotation matrix")
         cov = _matrix("cov", cov, (9, 9))
-        if np.abs(cov - cov.T).max() > 1e-9 * np.abs(cov).max() or np.linalg.eigvalsh(0.5 * (cov + cov.T)).min() <= 0:
-            raise ValueError("LearnedImuFactor: cov must be symmetric positive definite (9x9)")
+        problem = preintegration_problem(self.delta_rot[None], [self.dt], cov[None])
+        if problem is not None:
+            raise ValueError(f"LearnedImuFactor: {problem[1]}")
         if (bias is None) != (bias_jacobian is None):
             raise ValueError("LearnedImuFactor: give both bias (a key) and bias_jacobian (9x6), or neither")
         self.bias_jacobian = None if bias_jacobian is None else _matrix("bias_jacobian", bias_jacobian, (9, 6))

@@ -64,6 +64,9 @@ class SequenceConfig:
     span: tuple[float, ...] = (0.0, 1.0)
 
     def __post_init__(self):
+        from learned_imu.datasets import check_options
+
+        check_options(self.dataset, self.options, "options")
         if len(self.span) != 2 or not 0.0 <= self.span[0] < self.span[1] <= 1.0:
             raise ConfigError(
                 f"span of {self.path or self.dataset}: need [start, stop] with 0 <= start < stop <= 1, "

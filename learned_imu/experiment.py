@@ -32,6 +32,7 @@ import torch
 
 from learned_imu.checkpoint import build_model, load_checkpoint, save_checkpoint
 from learned_imu.config import ExperimentConfig, SequenceConfig, resolve_device, save_config, to_dict
+from learned_imu.datasets import SIMULATOR
 from learned_imu.distributed import World, agree, barrier, check_batch_size, is_writer
 from learned_imu.errors import ConfigError, InputError
 from learned_imu.evaluate import Evaluation, evaluate
@@ -43,7 +44,6 @@ from learned_imu.train import Trainer, calibrate_uncertainty, fit_noise_scales, 
 from learned_imu.windows import Windows, concat_windows, make_windows
 
 log = logging.getLogger(__name__)
-SIMULATOR = "simulator"
 # keys that may differ when resuming: the data may move, and the epoch budget may grow
 RESUMABLE_CHANGES = (
     "data.root",

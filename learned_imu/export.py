@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from learned_imu.errors import DataError
+from learned_imu.errors import DataError, InputError
 from learned_imu.io import atomic_file
 from learned_imu.preintegration import preintegrate
 from learned_imu.sequence import ImuSequence
@@ -56,6 +56,13 @@ def export_preintegration(
         raise ValueError("export: keyframe_index must hold at least two strictly increasing sample indices")
     if keyframe_index[0] < 0 or keyframe_index[-1] > n - 1:
         raise ValueError(f"export: keyframe indices must lie in [0, {n - 1}]")
+    if np.any(np.diff(keyframe_index) < 2):
+        k = int(np.flatnonzero(np.diff(keyframe_index) < 2)[0])
+        raise ValueError(
+            f"export: keyframes {k} and {k + 1} are one sample apart (indices {keyframe_index[k]}, "
+            f"{keyframe_index[k + 1]}): one sample's position and velocity noise are one source, so the interval's "
+            "covariance is singular; keyframes need at least two samples between them"
+        )
     gyro = sequence.gyro if gyro is None else np.asarray(gyro, dtype=float)
     acc = sequence.acc if acc is None else np.asarray(acc, dtype=float)
     gyro_cov = np.broadcast_to(np.asarray(gyro_cov, dtype=float), (n, 3))
@@ -119,13 +126,13 @@ def keyframes_from_spec(sequence: ImuSequence, spec: str) -> np.ndarray:
         try:
             interval = float(spec[:-1])
         except ValueError:
-            raise ValueError(f"keyframes: expected an interval like '0.1s' or a file of times, got {spec!r}") from None
-        if not interval > 0:
-            raise ValueError(f"keyframes: interval must be positive, got {spec!r}")
+            raise InputError(f"keyframes: expected an interval like '0.1s' or a file of times, got {spec!r}") from None
+        if not (np.isfinite(interval) and interval > 0):
+            raise InputError(f"keyframes: interval must be positive, got {spec!r}")
         return keyframes_every(sequence, interval)
     path = Path(spec)
     if not path.is_file():
-        raise ValueError(f"keyframes: {spec!r} is neither an interval like '0.1s' nor a file")
+        raise InputError(f"keyframes: {spec!r} is neither an interval like '0.1s' nor a file")
     try:
         times = np.loadtxt(path, ndmin=1, comments="#")
     except ValueError as error:

@@ -11,8 +11,22 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-TEMP_SUFFIX = ".tmp"  # temporary files are ".<target name>.<random>.tmp" beside the target
+TEMP_SUFFIX = ".tmp"  # temporary files are ".<target name>.<pid>.<random>.tmp" beside the target
 LOCK_NAME = ".lock"  # a folder's writer lock (folder_lock)
+
+
+def output_folder(folder: str | Path) -> Path:
+    """Create ``folder`` (and its parents) for output; a path that is a file is an ``InputError`` naming it."""
+    from learned_imu.errors import InputError
+
+    folder = Path(folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise InputError(f"{folder}: is a file (or lies under one); expected a folder for the output") from None
+    except PermissionError:
+        raise InputError(f"{folder}: no permission to create the output folder") from None
+    return folder
 
 
 @contextmanager
@@ -29,8 +43,7 @@ def folder_lock(folder: str | Path) -> Iterator[None]:
         return
     import socket
 
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    folder = output_folder(folder)
     fd = os.open(folder / LOCK_NAME, os.O_RDWR | os.O_CREAT, 0o666 & ~_umask())
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -52,10 +65,25 @@ def folder_lock(folder: str | Path) -> Iterator[None]:
 @contextmanager
 def atomic_file(path: str | Path, mode: str = "w") -> Iterator:
     """Open a temporary file beside ``path``; on success it is flushed to disk (fsync) and replaces ``path``, on
-    error it is removed. The result has the usual permissions (0666 minus the umask; ``mkstemp`` makes 0600)."""
+    error it is removed. The result has the usual permissions (0666 minus the umask; ``mkstemp`` makes 0600).
+    Temporaries of a killed writer of the same target (its process gone) are removed first; a target that is a
+    folder, or whose parent is a file, is an ``InputError`` naming it."""
+    from learned_imu.errors import InputError
+
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TEMP_SUFFIX, dir=path.parent)
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder; expected the path of a file to write")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise InputError(f"{path}: cannot write it: a part of {path.parent} is a file, not a folder") from None
+    except PermissionError:
+        raise InputError(f"{path}: cannot write it: no permission to create {path.parent}") from None
+    _remove_orphans(path)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=TEMP_SUFFIX, dir=path.parent)
+    except PermissionError:
+        raise InputError(f"{path}: cannot write it: no permission to write in {path.parent}") from None
     try:
         with os.fdopen(fd, mode) as f:
             yield f
@@ -66,6 +94,24 @@ def atomic_file(path: str | Path, mode: str = "w") -> Iterator:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def _remove_orphans(path: Path) -> None:
+    """Delete ``atomic_file`` temporaries of ``path`` whose writing process no longer runs (killed mid-write)."""
+    for tmp in path.parent.glob(f".{path.name}.*{TEMP_SUFFIX}"):
+        pid = tmp.name[len(path.name) + 2 :].split(".", 1)[0]
+        if pid.isdigit() and not _running(int(pid)):
+            tmp.unlink(missing_ok=True)
+
+
+def _running(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # exists, owned by someone else
+        return True
+    return True
 
 
 def _umask() -> int:

@@ -8,6 +8,7 @@ docstring states its frames, quaternion order and units. Shared parsing and chec
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
 from pathlib import Path
 
@@ -29,21 +30,114 @@ READERS: dict[str, Callable[..., ImuSequence | list[ImuSequence]]] = {
 }
 
 
+SIMULATOR = "simulator"  # a config's sequence made by learned_imu.simulator.simulate instead of a reader
+# Reader and simulator options are a handful of scalars and short lists: anything far larger is a mistake or an
+# attack (YAML aliases nest to ~10^9 elements in a few hundred bytes), refused before it is expanded.
+MAX_OPTION_ITEMS = 1000
+MAX_OPTION_DEPTH = 3
+
+
 def read_sequence(dataset: str, path: str | Path | None = None, **options) -> ImuSequence | list[ImuSequence]:
     """Read a sequence with the reader registered as ``dataset`` (a key of ``READERS``).
 
-    ``options`` are the reader's keyword arguments; ``path`` may be None only for ``"kitti"`` (gtsam's copy).
-    A list is returned only when the reader was asked to split at gaps (``on_gap="split"``).
+    ``options`` are the reader's keyword arguments (checked by ``check_options``); ``path`` may be None only for
+    ``"kitti"`` (gtsam's copy). A list is returned only when the reader was asked to split at gaps
+    (``on_gap="split"``). A file the reader cannot parse at all (zero bytes, random bytes, another format, no
+    permission) is a ``DataError`` naming it; the parser's own exception is its ``__cause__``.
     """
+    from learned_imu.errors import AirImuError, DataError, InputError
+
     if dataset not in READERS:
-        raise ValueError(f"unknown dataset {dataset!r}; known datasets: {', '.join(sorted(READERS))}")
+        raise InputError(f"unknown dataset {dataset!r}; known datasets: {', '.join(sorted(READERS))}")
     if path is None and dataset != "kitti":
-        raise ValueError(f"dataset {dataset!r} needs a path")
-    return READERS[dataset](path, **options)
+        raise InputError(f"dataset {dataset!r} needs a path")
+    options = check_options(dataset, options, "reader option")
+    if path is not None and not Path(path).exists():
+        raise DataError(path, "path", "no such file or folder")
+    try:
+        return READERS[dataset](path, **options)
+    except (AirImuError, MemoryError, KeyboardInterrupt):
+        raise
+    except Exception as error:  # the parsers' own errors (scipy, h5py, rosbags, UnicodeDecodeError, OSError...)
+        text = getattr(error, "strerror", None) or str(error)
+        problem = text.splitlines()[0] if text else "no detail"
+        raise DataError(path, "file", f"cannot be read as {dataset}: {type(error).__name__}: {problem}") from error
+
+
+def check_options(dataset: str, options: dict, where: str = "options") -> dict:
+    """``options`` checked against the signature of ``dataset``'s reader (or ``simulate`` for ``"simulator"``):
+    every key a keyword of it, every value of the annotated type (numbers, strings, booleans, lists of them),
+    at most ``MAX_OPTION_ITEMS`` values nested ``MAX_OPTION_DEPTH`` deep. A ``ConfigError`` names ``where``.key."""
+    from learned_imu.errors import ConfigError
+
+    if dataset == SIMULATOR:
+        from learned_imu.simulator import simulate as function
+    elif dataset in READERS:
+        function = READERS[dataset]
+    else:
+        known = ", ".join(sorted([*READERS, SIMULATOR]))
+        raise ConfigError(f"dataset: unknown dataset {dataset!r}; known: {known}")
+    if not isinstance(options, dict):
+        raise ConfigError(f"{where}: expected a mapping of option names to values, got {type(options).__name__}")
+    _check_size(options, where)
+    parameters = {n: p for n, p in inspect.signature(function).parameters.items() if n != "path"}
+    for key, value in options.items():
+        if key not in parameters:
+            raise ConfigError(
+                f"{where} '{key}': {dataset} has no such option; its options: {', '.join(sorted(parameters))}"
+            )
+        annotation = parameters[key].annotation
+        if isinstance(annotation, str) and not _matches(annotation, value):
+            raise ConfigError(f"{where} '{key}': expected {annotation}, got {value!r} ({type(value).__name__})")
+    return dict(options)
+
+
+def _check_size(value, where: str) -> None:
+    from learned_imu.errors import ConfigError
+
+    count = 0
+    stack = [(value, 0)]
+    while stack:
+        item, depth = stack.pop()
+        count += 1
+        if count > MAX_OPTION_ITEMS or depth > MAX_OPTION_DEPTH:
+            raise ConfigError(
+                f"{where}: more than {MAX_OPTION_ITEMS} values or nested deeper than {MAX_OPTION_DEPTH} levels "
+                "(YAML aliases?); reader and simulator options are a few scalars and short lists"
+            )
+        if isinstance(item, dict):
+            stack.extend((v, depth + 1) for v in item.values())
+        elif isinstance(item, list | tuple):
+            stack.extend((v, depth + 1) for v in item)
+
+
+_SCALARS = {
+    "None": lambda v: v is None,
+    "bool": lambda v: isinstance(v, bool),
+    "int": lambda v: isinstance(v, int) and not isinstance(v, bool),
+    "float": lambda v: isinstance(v, int | float) and not isinstance(v, bool),
+    "str": lambda v: isinstance(v, str),
+    "Path": lambda v: isinstance(v, str | Path),
+    "ColumnKey": lambda v: isinstance(v, str | int) and not isinstance(v, bool),
+}
+
+
+def _matches(annotation: str, value) -> bool:
+    """Does ``value`` fit a reader's string annotation (``'float | None'``, ``'Sequence[ColumnKey] | None'``)?"""
+    for alternative in (a.strip() for a in annotation.split("|")):
+        if alternative.startswith("Sequence[") and isinstance(value, list | tuple):
+            inner = alternative[len("Sequence[") : -1]
+            if all(_matches(inner, v) for v in value):
+                return True
+        elif alternative in _SCALARS and _SCALARS[alternative](value):
+            return True
+    return False
 
 
 __all__ = [
     "READERS",
+    "SIMULATOR",
+    "check_options",
     "read_broad",
     "read_csv",
     "read_euroc",

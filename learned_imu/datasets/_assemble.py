@@ -194,8 +194,9 @@ def build_sequence(
     truth = resample_ground_truth(t, gt, vel_window_s=vel_window_s) if gt is not None else None
     if truth is not None and check_frame:
         _checks.check_frame(
-            t, gyro, acc, truth.rot, truth.valid, gravity, source, gt.source, truth.vel, frame_interval_s
-        )
+            t, gyro, acc, truth.rot, truth.valid, gravity, source, gt.source, truth.vel, frame_interval_s,
+            pos=truth.pos, vel_given=gt.vel is not None,
+        )  # fmt: skip
     if on_gap != "split":
         return _make(name, source, t, gyro, acc, gravity, truth, gps, slice(None))
     parts = [s for s in _checks.segments(t) if s.stop - s.start >= 2]

@@ -7,6 +7,11 @@ The frame self-check uses two facts that hold for any correctly read sequence:
 - the gyro integrated over a short interval equals the rotation between the ground-truth orientations at its
   ends, ``Log(R_i^T R_j) ~= integral of gyro`` (body frame), up to a constant gyro bias (fitted and removed).
 
+``check_motion`` then holds the ground truth's translation to the same standard: over 1-s intervals the velocity
+change equals the IMU's specific force rotated to the world plus gravity, integrated, and the displacement equals
+the velocity integrated. A least-squares scale between the two far from 1 names the field (positions in mm or
+km, a negated or mis-scaled velocity).
+
 When the data as read fail, the usual mistakes are tried (quaternion order, inverted rotation, acc in g, gyro
 in deg/s, each also the other way round) and the DataError names the one that makes both facts hold.
 """
@@ -43,6 +48,10 @@ ACC_TOL = 0.06  # |mean(R acc) + g| / |g|; 0.06 * 9.81 = 0.59 m/s^2 of mean acce
 GYRO_TOL = 0.35  # rms(Log(R_i^T R_j)/dt - mean gyro - bias) / rms(Log(R_i^T R_j)/dt)
 GYRO_INTERVAL_S = 0.05  # length of the intervals the gyro is integrated over, s
 GYRO_MIN_RATE = 0.05  # rad/s rms; below this the ground truth barely rotates and the gyro test is skipped
+# motion self-check (positions and velocities in the IMU's metres and seconds, same sign)
+MOTION_INTERVAL_S = 1.0  # intervals over which velocity change and displacement are compared, s
+MOTION_MIN_RMS = 0.2  # m/s (velocity change) or m (displacement) rms over the intervals; less: too still to judge
+MOTION_SCALE = (0.5, 2.0)  # fitted ground truth / prediction scale accepted (mm read as m gives 1000, negated -1)
 
 
 def check_timestamps(
@@ -214,9 +223,11 @@ def frame_score(t, gyro, acc, rot, valid, gravity, vel=None, interval_s: float =
 
 def check_frame(
     t, gyro, acc, rot, valid, gravity, source: object, gt_source: object = None, vel=None,
-    interval_s: float = GYRO_INTERVAL_S,
+    interval_s: float = GYRO_INTERVAL_S, pos=None, vel_given: bool = False,
 ) -> FrameScore | None:  # fmt: skip
-    """Frame self-check of ground truth against the IMU; raises a DataError naming the misread convention.
+    """Frame self-check of ground truth against the IMU; raises a DataError naming the misread convention. With
+    ``pos`` (N, 3) and ``vel`` the motion self-check (``check_motion``) runs too: after a pass, and before a failure
+    that no rotation or IMU-unit mistake explains (positions in mm also fail the mean-acceleration fact).
 
     Args:
         t (N,) s, gyro (N, 3) rad/s, acc (N, 3) m/s^2, rot (N, 3, 3) world <- IMU, valid (N,) bool,
@@ -230,7 +241,10 @@ def check_frame(
         logger.info("%s: frame self-check skipped (%d valid ground-truth samples)", source, int(valid.sum()))
         return None
     score = frame_score(t, gyro, acc, rot, valid, gravity, vel, interval_s)
+    motion = (t, acc, rot, pos, vel, valid, gravity, gt_source, vel_given)
     if score.ok:
+        if pos is not None and vel is not None:
+            check_motion(*motion)
         return score
     found = (
         f"mean of R_gt @ acc = {np.round(score.mean_world_acc, 3).tolist()} m/s^2, expected about "
@@ -245,6 +259,8 @@ def check_frame(
         if alt_score.ok:
             fits.append((alt_score.acc / ACC_TOL + alt_score.gyro / GYRO_TOL, alt, alt_score))
     if not fits:
+        if pos is not None and vel is not None:
+            check_motion(*motion)  # a translation in other units or sign explains it better
         raise DataError(
             gt_source,
             "gt.rot",
@@ -259,3 +275,51 @@ def check_frame(
         f"frame self-check failed: {found}. It passes if {alt.hint} "
         f"(residuals then {alt_score.acc:.3f} and {alt_score.gyro:.3f})",
     )
+
+
+def check_motion(t, acc, rot, pos, vel, valid, gravity, gt_source: object, vel_given: bool) -> None:
+    """Motion self-check (module docstring): a ``DataError`` naming ``gt.vel`` or ``gt.pos`` when the ground truth's
+    velocity change is not the integrated specific force plus gravity, or its displacement not the integrated
+    velocity, within ``MOTION_SCALE``. Skipped when the motion is too small to judge. Arrays as ``check_frame``'s,
+    ``pos``/``vel`` (N, 3) world frame; ``vel_given``: the velocity was read from the file (not differentiated)."""
+    median_dt = float(np.median(np.diff(t)))
+    step = max(1, int(round(MOTION_INTERVAL_S / median_dt)))
+    i = np.arange(0, t.shape[0] - step, step)
+    j = i + step
+    ok = valid[i] & valid[j] & (t[j] - t[i] < 1.5 * step * median_dt)
+    bad_rows = np.flatnonzero(~valid)  # no invalid row inside an interval
+    if bad_rows.size:
+        ok &= np.searchsorted(bad_rows, i) == np.searchsorted(bad_rows, j)
+    i, j = i[ok], j[ok]
+    if i.shape[0] < 5:
+        return
+    dt = np.diff(t, append=t[-1])[:, None]
+    world = np.where(valid[:, None], np.einsum("nij,nj->ni", rot, acc) + gravity, 0.0)
+    integral = np.concatenate([np.zeros((1, 3)), np.cumsum(world * dt, axis=0)])
+    checks = [("gt.vel" if vel_given else "gt.pos", "velocity change", vel[j] - vel[i], integral[j] - integral[i])]
+    if vel_given:
+        v_integral = np.concatenate([np.zeros((1, 3)), np.cumsum(np.where(valid[:, None], vel, 0.0) * dt, axis=0)])
+        checks.append(("gt.pos", "displacement", pos[j] - pos[i], v_integral[j] - v_integral[i]))
+    for field, what, observed, predicted in checks:
+        rms = float(np.sqrt((predicted**2).sum(axis=1).mean()))
+        if rms < MOTION_MIN_RMS:
+            continue
+        scale = float((observed * predicted).sum() / (predicted**2).sum())
+        if MOTION_SCALE[0] <= scale <= MOTION_SCALE[1]:
+            continue
+        source = "the integrated IMU (R_gt @ acc + gravity)" if what == "velocity change" else "the integrated velocity"
+        hint = _scale_hint(scale)
+        raise DataError(
+            gt_source,
+            field,
+            f"motion self-check failed: over {MOTION_INTERVAL_S:g}-s intervals the ground truth's {what} is "
+            f"{scale:.4g} times that of {source} (expected about 1){hint}",
+        )
+
+
+def _scale_hint(scale: float) -> str:
+    for factor, hint in ((-1.0, "negated (sign flipped, or another world frame)"), (1000.0, "in mm, not m"),
+                         (100.0, "in cm, not m"), (0.001, "in km, not m")):  # fmt: skip
+        if 0.7 < scale / factor < 1.4:
+            return f": {hint}?"
+    return ""

@@ -31,7 +31,7 @@ def exported(sequence, tmp_path_factory):
 
 
 def test_irregular_keyframes_equal_integrating_each_interval(sequence, tmp_path):
-    keyframes = np.array([0, 50, 100, 180, 260, 261, 400])
+    keyframes = np.array([0, 50, 100, 180, 260, 262, 400])  # the shortest interval: two samples
     path = export_preintegration(tmp_path / "irregular.npz", sequence, keyframes, 1e-6, 1e-4)
     export = load_export(path)
     for k, (a, b) in enumerate(zip(keyframes[:-1], keyframes[1:], strict=True)):

@@ -58,8 +58,9 @@ def ablate_pgo(
 def _run_pgo(config, out, json_out, csv_out, rrd, png, epochs, progress, data_root=None) -> None:
     from rich.table import Table
 
+    from fusion.figures import plot
     from fusion.pipeline import ablate_pgo as run
-    from fusion.pipeline import paper_ate, plot, record, write_table
+    from fusion.pipeline import paper_ate, record, write_table
 
     console = _wide_console()
     results = run(config, out, progress=progress, data_root=data_root, epochs=epochs)

@@ -162,8 +162,9 @@ def write_outputs(result: Fused, folder: Path, reference: GpsFixes | Gps | None 
     ``reference`` fixes, default the fused ones, and the ATE against the ground truth where the sequence has one:
     meaningful only when the GPS is in the ground truth's frame),
     each written atomically. Returns the summary and the paths."""
+    from fusion.figures import plot
     from fusion.graph import with_marginals
-    from fusion.pipeline import SequenceResult, plot, record
+    from fusion.pipeline import SequenceResult, record
     from learned_imu.io import atomic_file, write_json_atomic
 
     folder.mkdir(parents=True, exist_ok=True)

@@ -1,13 +1,14 @@
 """The product's main job, stage by stage: model -> corrected IMU -> exports -> graphs -> ATE table -> recording.
 
 ``ablate_pgo(config, out)`` trains the configured model (or finishes its interrupted run), corrects every
-evaluation sequence, runs the PGO ablation (``fusion.pgo``) and optionally writes a Rerun recording and a PNG of
-the first sequence.
+evaluation sequence, runs the PGO ablation (``fusion.pgo``) and optionally writes a Rerun recording (``record``)
+and a PNG (``fusion.figures.plot``) of the first sequence.
 """
 
 from __future__ import annotations
 
 import logging
+import weakref
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -73,54 +74,34 @@ def dead_reckoning(sequence: ImuSequence, gyro: np.ndarray, acc: np.ndarray, tim
 
 
 def record(result: SequenceResult, path: str | Path) -> Path:
-    """A Rerun recording of one sequence: truth, raw and AirIMU dead reckoning, GPS, fused tracks with
-    covariance ellipsoids, IMU series, corrections and learned sigmas."""
+    """A Rerun recording of one sequence (``fusion.recording``): ground truth, GPS, fused tracks with covariance
+    ellipsoids, errors against 3-sigma bounds, raw and AirIMU dead reckoning, IMU series, corrections, sigmas."""
     from fusion.recording import ImuSeries, Track, write_recording
 
     seq, c = result.sequence, result.correction
-    any_solution = next(iter(result.examples.values()))[0]
-    times = any_solution.trajectory.t
-    tracks, truth = [], None
+    fused = [Track(name, *marginal_track(solution)) for name, (solution, _) in result.examples.items()]
+    times = fused[0].t
+    truth, drift = None, []
     if seq.gt is not None:
         truth = Track("ground truth", seq.t, seq.gt.pos)
-        tracks += [
-            truth,
-            Track("raw", times, dead_reckoning(seq, seq.gyro, seq.acc, times)),
-            Track("airimu", times, dead_reckoning(seq, c.gyro.numpy(), c.acc.numpy(), times)),
+        drift = [
+            Track("raw IMU", times, dead_reckoning(seq, seq.gyro, seq.acc, times)),
+            Track("AirIMU", times, dead_reckoning(seq, c.gyro.numpy(), c.acc.numpy(), times)),
         ]
-    fused = []
-    for name, (solution, _) in result.examples.items():
-        trajectory = with_marginals(solution)
-        fused.append(Track(name, trajectory.t, trajectory.pos, trajectory.pos_cov))
     gps = next(iter(result.examples.values()))[1]
     imu = ImuSeries(seq.t, seq.gyro, seq.acc, c.d_gyro.numpy(), c.d_acc.numpy(), c.gyro_cov.numpy(), c.acc_cov.numpy())
-    return write_recording(path, tracks, fused, (gps.t, gps.pos), imu, truth)
+    return write_recording(path, fused, truth, drift, (gps.t, gps.pos), imu)
 
 
-def plot(result: SequenceResult, path: str | Path) -> Path:
-    """A PNG of the trajectories (top view): ground truth, GPS and every fused setting."""
-    import matplotlib
+def marginal_track(solution) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(t, pos, pos_cov) of a solution's keyframes, the marginals computed once per solution."""
+    if solution not in _MARGINALS:
+        trajectory = with_marginals(solution)
+        _MARGINALS[solution] = (trajectory.t, trajectory.pos, trajectory.pos_cov)
+    return _MARGINALS[solution]
 
-    matplotlib.use("Agg")
-    from matplotlib import pyplot as plt
 
-    from learned_imu.io import atomic_file
-
-    seq = result.sequence
-    fig, ax = plt.subplots(figsize=(8, 7))
-    if seq.gt is not None:
-        ax.plot(seq.gt.pos[:, 0], seq.gt.pos[:, 1], "k-", lw=2, label="ground truth")
-    for name, (solution, _) in result.examples.items():
-        pos = solution.trajectory.pos
-        ax.plot(pos[:, 0], pos[:, 1], lw=1, label=name)
-    gps = next(iter(result.examples.values()))[1]
-    ax.plot(gps.pos[:, 0], gps.pos[:, 1], "r.", ms=4, label="GPS (fused)")
-    ax.set(xlabel="x (m)", ylabel="y (m)", title=f"{seq.name}: IMU + GPS pose graph", aspect="equal")
-    ax.legend(fontsize=8)
-    with atomic_file(path, "wb") as f:
-        fig.savefig(f, format="png", dpi=120)
-    plt.close(fig)
-    return Path(path)
+_MARGINALS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # record() and plot() share them
 
 
 def paper_ate(row: PgoRow) -> float | None:

@@ -1,33 +1,51 @@
-"""Rerun recordings of a fusion run (the only module that imports rerun).
+"""Rerun recordings of a fusion run and of a training run (the only module that imports rerun).
 
-Entity layout, one time line ``time`` in seconds (IMU clock):
+Entity layout of a fusion recording, one time line ``time`` in seconds (IMU clock), world frame, m:
 
-- ``world/ground_truth``, ``world/raw``, ``world/airimu``, ``world/fused/<setting>``: ``LineStrips3D``
-  trajectories (static: one strip each), world frame, m;
-- ``world/gps``: GPS fixes (``Points3D``, static);
-- ``world/fused/<setting>/covariance``: ``Ellipsoids3D`` of the marginal position covariance at the keyframes
-  (3-sigma, per keyframe on the time line);
-- ``imu/gyro/{x,y,z}`` rad/s, ``imu/acc/{x,y,z}`` m/s^2: raw samples; ``correction/gyro/*``, ``correction/acc/*``;
-  ``sigma/gyro/*`` rad/s/sqrt(Hz), ``sigma/acc/*`` m/s^2/sqrt(Hz): learned noise (square roots of the densities);
-  ``error/position/<setting>`` m: fused position error at the keyframes (``Scalars``).
+- ``world/ground_truth``: ``LineStrips3D`` (static, near black, labelled); ``world/ground_truth/now``: the true
+  position at every keyframe (a moving marker);
+- ``world/gps``: every fused fix (``Points3D``, static, magenta); ``world/gps/fix``: each fix at its time (marks
+  on the time line, the latest fix drawn larger);
+- ``world/fused/<setting>``: the solved trajectory (static, the setting's colour, ``fusion.colors``);
+  ``.../now``: the keyframe at the time cursor; ``.../covariance``: ``Ellipsoids3D`` of the marginal position
+  covariance at the keyframe (3-sigma), per keyframe on the time line;
+- ``world/dead_reckoning/<track>``: raw and AirIMU dead reckoning, kept out of the default 3-D view (they drift
+  kilometres and would set its camera) and shown in their own tab;
+- ``error/position/<setting>`` m: |fused - truth| at the keyframes; ``error/sigma3/<setting>`` m: the longest
+  half-axis of the 3-sigma ellipsoid (3 sqrt of the largest eigenvalue of the marginal), the bound to check
+  against; ``error/dead_reckoning/<track>`` m: dead-reckoning drift;
+- ``imu/gyro`` rad/s, ``imu/acc`` m/s^2 (raw); ``correction/gyro``, ``correction/acc``; ``sigma/gyro``
+  rad/s/sqrt(Hz), ``sigma/acc`` m/s^2/sqrt(Hz) (square roots of the learned densities): three columns x, y, z.
 
-Whole series go in with ``rr.send_columns``; constants are ``static``. The blueprint opens on the 3-D view beside
-the plots. ``airimu view out.rrd`` opens the viewer.
+Every series is named and coloured with a static ``SeriesLines``. Whole series go in with ``rr.send_columns``;
+constants are ``static``. The blueprint: the 3-D view (dead reckoning excluded, ellipsoids of the headline setting
+visible, the others hidden, one click away) beside tabs of plots split by unit; blueprint and time panels open.
+``airimu view out.rrd`` opens the viewer.
+
+A training recording (``TrainingRecorder``): ``loss/{train,val}``, ``val/roe_deg``, ``val/rpe_rmse_m``, ``lr`` on
+the time line ``epoch``.
 """
 
 from __future__ import annotations
 
 import os
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from fusion import colors
+
 TIMELINE = "time"
-SIGMA_SCALE = 3.0  # ellipsoid half-sizes in standard deviations
+SIGMA_SCALE = 3.0  # ellipsoid half-sizes and error bounds in standard deviations
+LEGEND_HEADROOM = 0.6  # fraction of a plot's data range left free above the curves for the legend
+VIEW_BACKGROUND = (250, 250, 250)  # light, so that the dark ground truth reads as in the PNG
+LINE = rr.Radius.ui_points(1.2)
+TRUTH_LINE = rr.Radius.ui_points(2.5)  # drawn under the thinner fused lines
+MARKER = rr.Radius.ui_points(5.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -54,96 +72,219 @@ class ImuSeries:
     acc_cov: np.ndarray | None = None
 
 
+@dataclass
+class _Plot:
+    """One time-series view: its title (with the unit), entities, and the y range of their data."""
+
+    title: str
+    entities: list[str]
+    lo: float = np.inf
+    hi: float = -np.inf
+
+    def include(self, values: np.ndarray) -> None:
+        finite = values[np.isfinite(values)]
+        if finite.size:
+            self.lo, self.hi = min(self.lo, float(finite.min())), max(self.hi, float(finite.max()))
+
+
+@dataclass
+class _Plots:
+    error: list[_Plot] = field(default_factory=list)  # all settings, then one per setting with its bound
+    drift: list[_Plot] = field(default_factory=list)
+    sensors: dict[str, list[_Plot]] = field(default_factory=dict)  # "gyro" / "acc" -> raw, correction, sigma
+
+
 def write_recording(
     path: str | Path,
-    tracks: list[Track],
     fused: list[Track],
+    truth: Track | None = None,
+    dead_reckoning: list[Track] = (),
     gps: tuple[np.ndarray, np.ndarray] | None = None,
     imu: ImuSeries | None = None,
-    truth: Track | None = None,
     application: str = "airimu",
 ) -> Path:
-    """Write an ``.rrd`` (atomically). ``tracks``: ground truth, raw, AirIMU dead reckoning...; ``fused``: solved
-    trajectories (with ``pos_cov`` for ellipsoids); ``gps`` = (t (M,), pos (M, 3)); ``truth`` scores ``fused``."""
+    """Write an ``.rrd`` (atomically). ``fused``: solved trajectories (with ``pos_cov`` for ellipsoids and
+    bounds); ``truth`` scores them; ``dead_reckoning``: raw/AirIMU integration; ``gps`` = (t (M,), pos (M, 3))."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")  # rerun writes the file; rename when complete
     try:
-        _record(tmp, application, tracks, fused, gps, imu, truth)
+        rec = rr.RecordingStream(application)
+        rec.save(str(tmp))
+        plots = _Plots()
+        names = [t.name for t in fused]
+        palette = colors.setting_colors(names + [t.name for t in dead_reckoning])
+        _log_world(rec, fused, truth, dead_reckoning, gps, palette)
+        _log_errors(rec, fused, truth, dead_reckoning, palette, plots)
+        if imu is not None:
+            _log_imu(rec, imu, plots)
+        scene = truth.pos if truth is not None else (fused[0].pos if fused else np.zeros((1, 3)))
+        rec.send_blueprint(_blueprint(fused, colors.headline(names), plots, _eye(scene)), make_active=True)
+        rec.flush()
+        rec.disconnect()
         tmp.replace(path)
     finally:
         tmp.unlink(missing_ok=True)
     return path
 
 
-def _record(tmp: Path, application: str, tracks, fused, gps, imu, truth) -> None:
-    rec = rr.RecordingStream(application)
-    rec.save(str(tmp))
-    rec.send_blueprint(_blueprint(fused), make_active=True)
+def _log_world(rec, fused, truth, dead_reckoning, gps, palette) -> None:
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-    for track in tracks:
-        rec.log(f"world/{_slug(track.name)}", rr.LineStrips3D([track.pos]), static=True)
+    if truth is not None:
+        _log_track(rec, "world/ground_truth", truth, colors.GROUND_TRUTH, show_label=True, radius=TRUTH_LINE)
+        if fused:
+            t = fused[0].t
+            _send(rec, "world/ground_truth/now", t, rr.Points3D.columns(positions=_at(truth, t)))
+            rec.log("world/ground_truth/now", rr.Points3D.from_fields(colors=colors.GROUND_TRUTH, radii=MARKER),
+                    static=True)  # fmt: skip
+    if gps is not None:
+        t, pos = gps
+        rec.log("world/gps", rr.Points3D(pos, colors=colors.GPS, radii=rr.Radius.ui_points(3.0)), static=True)
+        _send(rec, "world/gps/fix", t, rr.Points3D.columns(positions=pos))
+        fix = rr.Points3D.from_fields(colors=colors.GPS, radii=rr.Radius.ui_points(7.0), labels="GPS fix",
+                                      show_labels=False)  # fmt: skip
+        rec.log("world/gps/fix", fix, static=True)
     for track in fused:
-        entity = f"world/fused/{_slug(track.name)}"
-        rec.log(entity, rr.LineStrips3D([track.pos]), static=True)
+        entity, color = f"world/fused/{_slug(track.name)}", palette[track.name]
+        _log_track(rec, entity, track, color, show_label=False)
+        _send(rec, f"{entity}/now", track.t, rr.Points3D.columns(positions=track.pos))
+        rec.log(f"{entity}/now", rr.Points3D.from_fields(colors=color, radii=MARKER, labels=track.name,
+                                                          show_labels=False), static=True)  # fmt: skip
         if track.pos_cov is not None:
-            _send_ellipsoids(rec, f"{entity}/covariance", track)
+            _send_ellipsoids(rec, f"{entity}/covariance", track, color)
+    for track in dead_reckoning:
+        _log_track(rec, f"world/dead_reckoning/{_slug(track.name)}", track, palette[track.name], show_label=True)
+
+
+def _log_track(rec, entity: str, track: Track, color, show_label: bool, radius=LINE) -> None:
+    strip = rr.LineStrips3D([track.pos], colors=color, radii=radius, labels=track.name, show_labels=show_label)
+    rec.log(entity, strip, static=True)
+
+
+def _log_errors(rec, fused, truth, dead_reckoning, palette, plots: _Plots) -> None:
+    """Position error of every setting against its 3-sigma bound, and the dead-reckoning drift."""
+    if truth is not None and fused:
+        overview = _Plot("position error, all settings (m)", [])
+        plots.error.append(overview)
+    for track in fused:
+        slug, color = _slug(track.name), palette[track.name]
+        mine = _Plot(f"{track.name} (m)", [])
         if truth is not None:
             error = np.linalg.norm(track.pos - _at(truth, track.t), axis=1)
-            _send_scalars(rec, f"error/position/{_slug(track.name)}", track.t, error[:, None], ("norm",))
-    if gps is not None:
-        rec.log("world/gps", rr.Points3D(gps[1], radii=0.05), static=True)
-    if imu is not None:
-        _send_imu(rec, imu)
-    rec.flush()
-    rec.disconnect()
+            _send_series(rec, f"error/position/{slug}", track.t, error[:, None], [track.name], [color])
+            for plot in (overview, mine):
+                plot.entities.append(f"error/position/{slug}")
+                plot.include(error)
+        if track.pos_cov is not None:
+            bound = SIGMA_SCALE * np.sqrt(np.clip(np.linalg.eigvalsh(track.pos_cov)[:, -1], 0.0, None))
+            _send_series(rec, f"error/sigma3/{slug}", track.t, bound[:, None], [f"{track.name}: 3σ"],
+                         [colors.lighter(color, 0.55)])  # fmt: skip
+            mine.entities.append(f"error/sigma3/{slug}")
+            mine.include(bound)
+        if mine.entities:
+            plots.error.append(mine)
+    if truth is not None and dead_reckoning:
+        drift = _Plot("dead-reckoning drift from ground truth (m)", [])
+        for track in dead_reckoning:
+            error = np.linalg.norm(track.pos - _at(truth, track.t), axis=1)
+            entity = f"error/dead_reckoning/{_slug(track.name)}"
+            _send_series(rec, entity, track.t, error[:, None], [f"{track.name} (dead reckoning)"],
+                         [palette[track.name]])  # fmt: skip
+            drift.entities.append(entity)
+            drift.include(error)
+        plots.drift.append(drift)
 
 
-def _send_imu(rec: rr.RecordingStream, imu: ImuSeries) -> None:
-    axes = ("x", "y", "z")
-    _send_scalars(rec, "imu/gyro", imu.t, imu.gyro, axes)
-    _send_scalars(rec, "imu/acc", imu.t, imu.acc, axes)
-    if imu.d_gyro is not None:
-        _send_scalars(rec, "correction/gyro", imu.t, imu.d_gyro, axes)
-        _send_scalars(rec, "correction/acc", imu.t, imu.d_acc, axes)
-    if imu.gyro_cov is not None:
-        _send_scalars(rec, "sigma/gyro", imu.t, np.sqrt(imu.gyro_cov), axes)
-        _send_scalars(rec, "sigma/acc", imu.t, np.sqrt(imu.acc_cov), axes)
+def _log_imu(rec, imu: ImuSeries, plots: _Plots) -> None:
+    units = {"gyro": ("rad/s", "rad/s/√Hz"), "acc": ("m/s²", "m/s²/√Hz")}
+    for sensor, (unit, sigma_unit) in units.items():
+        series = [(f"imu/{sensor}", f"{sensor} (raw, {unit})", getattr(imu, sensor))]
+        correction = getattr(imu, f"d_{sensor}")
+        if correction is not None:
+            series.append((f"correction/{sensor}", f"{sensor} correction ({unit})", correction))
+        cov = getattr(imu, f"{sensor}_cov")
+        if cov is not None:
+            series.append((f"sigma/{sensor}", f"learned {sensor} σ ({sigma_unit})", np.sqrt(cov)))
+        plots.sensors[sensor] = []
+        for entity, title, values in series:
+            _send_series(rec, entity, imu.t, values, list(colors.AXIS_NAMES), list(colors.AXES))
+            plot = _Plot(title, [entity])
+            plot.include(values)
+            plots.sensors[sensor].append(plot)
 
 
-def _send_scalars(rec: rr.RecordingStream, entity: str, t: np.ndarray, values: np.ndarray, names) -> None:
-    for i, name in enumerate(names):
-        rec.send_columns(
-            f"{entity}/{name}",
-            indexes=[rr.TimeColumn(TIMELINE, duration=np.asarray(t, dtype=float))],
-            columns=rr.Scalars.columns(scalars=np.ascontiguousarray(values[:, i], dtype=float)),
-        )
+def _send_series(rec, entity: str, t: np.ndarray, values: np.ndarray, names: list[str], rgb: list) -> None:
+    """(N, C) scalars as C named, coloured series of one entity."""
+    rec.log(entity, rr.SeriesLines(names=names, colors=rgb, widths=[1.5] * len(names)), static=True)
+    values = np.ascontiguousarray(values, dtype=float)
+    _send(rec, entity, t, rr.Scalars.columns(scalars=values if values.shape[1] > 1 else values[:, 0]))
 
 
-def _send_ellipsoids(rec: rr.RecordingStream, entity: str, track: Track) -> None:
+def _send(rec, entity: str, t: np.ndarray, columns) -> None:
+    rec.send_columns(entity, indexes=[rr.TimeColumn(TIMELINE, duration=np.asarray(t, dtype=float))], columns=columns)
+
+
+def _send_ellipsoids(rec, entity: str, track: Track, color) -> None:
     """One ellipsoid per keyframe: principal axes of the position covariance, ``SIGMA_SCALE`` sigmas."""
     eigval, eigvec = np.linalg.eigh(track.pos_cov)
     eigvec = eigvec * np.sign(np.linalg.det(eigvec))[:, None, None]  # proper rotations
     half_sizes = SIGMA_SCALE * np.sqrt(np.clip(eigval, 0.0, None))
     quat_xyzw = np.array([_quaternion_xyzw(r) for r in eigvec])
-    rec.send_columns(
-        entity,
-        indexes=[rr.TimeColumn(TIMELINE, duration=track.t)],
-        columns=rr.Ellipsoids3D.columns(centers=track.pos, half_sizes=half_sizes, quaternions=quat_xyzw),
-    )
+    _send(rec, entity, track.t, rr.Ellipsoids3D.columns(centers=track.pos, half_sizes=half_sizes,
+                                                        quaternions=quat_xyzw))  # fmt: skip
+    rec.log(entity, rr.Ellipsoids3D.from_fields(colors=color, line_radii=rr.Radius.ui_points(1.0)), static=True)
 
 
-def _blueprint(fused: list[Track]) -> rrb.Blueprint:
-    plots = [
-        rrb.TimeSeriesView(origin="/error/position", name="position error (m)"),
-        rrb.TimeSeriesView(origin="/imu", name="IMU samples"),
-        rrb.TimeSeriesView(origin="/correction", name="corrections"),
-        rrb.TimeSeriesView(origin="/sigma", name="learned sigma"),
-    ]
+def _eye(pos: np.ndarray) -> rrb.EyeControls3D:
+    """A camera looking down at the scene's centre from the south, about 55 degrees above the horizon."""
+    lo, hi = pos.min(axis=0), pos.max(axis=0)
+    centre, extent = (lo + hi) / 2, max(float(np.max(hi - lo)), 1.0)
+    return rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, look_target=centre, eye_up=(0.0, 0.0, 1.0),
+                             position=centre + extent * np.array([0.0, -0.75, 1.1]))  # fmt: skip
+
+
+def _blueprint(fused: list[Track], headline: str | None, plots: _Plots, eye: rrb.EyeControls3D) -> rrb.Blueprint:
+    hidden = {
+        f"/world/fused/{_slug(t.name)}/covariance": rrb.EntityBehavior(visible=False)
+        for t in fused
+        if t.name != headline
+    }
+    scene = rrb.Spatial3DView(
+        name="trajectories (m)", origin="/world", contents=["+ /world/**", "- /world/dead_reckoning/**"],
+        overrides=hidden, background=VIEW_BACKGROUND, eye_controls=eye,
+    )  # fmt: skip
+    drift_scene = rrb.Spatial3DView(
+        name="dead reckoning (m)", origin="/world", background=VIEW_BACKGROUND, eye_controls=eye,
+        contents=["+ /world/ground_truth", "+ /world/dead_reckoning/**"],
+    )  # fmt: skip
+    left = rrb.Tabs(scene, rrb.Vertical(drift_scene, *map(_view, plots.drift), name="dead reckoning"),
+                    active_tab=0)  # fmt: skip
+    tabs = []
+    if plots.error:
+        overview, per_setting = plots.error[0], plots.error[1:]
+        tabs.append(rrb.Vertical(_view(overview), rrb.Grid(*map(_view, per_setting)), row_shares=[1, 2],
+                                 name="position error (m)"))  # fmt: skip
+    units = {"gyro": "gyro (rad/s)", "acc": "acc (m/s²)"}
+    tabs += [rrb.Vertical(*map(_view, views), name=units[sensor]) for sensor, views in plots.sensors.items()]
+    layout = rrb.Horizontal(left, rrb.Tabs(*tabs, active_tab=0), column_shares=[3, 2]) if tabs else left
     return rrb.Blueprint(
-        rrb.Horizontal(rrb.Spatial3DView(origin="/world", name="trajectories"), rrb.Vertical(*plots)),
-        collapse_panels=True,
+        layout,
+        rrb.BlueprintPanel(state="expanded"),
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.TimePanel(state="expanded", timeline=TIMELINE),
+        auto_views=False,
     )
+
+
+def _view(plot: _Plot) -> rrb.TimeSeriesView:
+    """A time-series view of ``plot``'s entities, the y range leaving room at the top for the legend."""
+    lo, hi = (plot.lo, plot.hi) if np.isfinite(plot.lo) else (0.0, 1.0)
+    span = max(hi - lo, 1e-9)
+    axis = rrb.ScalarAxis(range=(lo - 0.05 * span, hi + LEGEND_HEADROOM * span))
+    return rrb.TimeSeriesView(
+        name=plot.title, origin="/", contents=[f"+ /{e}" for e in plot.entities], axis_y=axis,
+        plot_legend=rrb.PlotLegend(rrb.Corner2D.LeftTop),
+    )  # fmt: skip
 
 
 def _at(track: Track, t: np.ndarray) -> np.ndarray:

@@ -64,13 +64,16 @@ def test_recording_reads_back(ablation):
         rows[chunk.entity_path] += chunk.num_rows
     n = 8 * 200  # 8 s at 200 Hz
     k = 40  # keyframes every 0.2 s
-    for entity in ("/imu/gyro/x", "/imu/acc/z", "/correction/gyro/y", "/sigma/acc/x"):
-        assert rows[entity] == n, entity
-    for entity in ("/world/ground_truth", "/world/raw", "/world/airimu", "/world/gps"):
+    for entity in ("/imu/gyro", "/imu/acc", "/correction/gyro", "/sigma/acc"):
+        assert rows[entity] == n + 1, entity  # x, y, z per sample, and the static series names and colours
+    for entity in ("/world/ground_truth", "/world/dead_reckoning/raw_imu", "/world/dead_reckoning/airimu",
+                   "/world/gps"):  # fmt: skip
         assert rows[entity] == 1, entity  # static: one strip / one point cloud
-    assert rows["/world/fused/airimu_learned_cov/covariance"] == k
-    assert rows["/error/position/airimu_learned_cov/norm"] == k
-    error = next(c for c in chunks if c.entity_path == "/error/position/raw_imu_fixed_cov/norm").to_record_batch()
+    assert rows["/world/fused/airimu_learned_cov/covariance"] == k + 1
+    assert rows["/error/position/airimu_learned_cov"] == k + 1
+    error = next(
+        c for c in chunks if c.entity_path == "/error/position/raw_imu_fixed_cov" and c.num_rows == k
+    ).to_record_batch()
     values = np.array(error.column("Scalars:scalars").to_pylist()).ravel()
     assert np.all(values >= 0) and np.all(values < 5)
     ellipsoids = next(c for c in chunks if c.entity_path == "/world/fused/airimu_learned_cov/covariance")

@@ -1,0 +1,172 @@
+"""The Rerun recording read back from the file: the blueprint's views and entity filters, and the logged names,
+colours and values (small synthetic tracks; ``tests/fusion/test_pgo.py`` reads one of a real ablation)."""
+
+from __future__ import annotations
+
+from collections import defaultdict
+
+import numpy as np
+import pytest
+
+from fusion import colors
+
+SETTINGS = ("raw IMU + fixed cov", "AirIMU + fixed cov", "raw IMU + learned cov", "AirIMU + learned cov")
+
+
+def _rgba(color) -> int:
+    r, g, b = color
+    return (r << 24) | (g << 16) | (b << 8) | 255
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    """Ground truth on a circle, four fused settings each a known constant offset from it with a known isotropic
+    covariance, two dead-reckoning tracks drifting away, GPS fixes and IMU series."""
+    from fusion.recording import ImuSeries, Track, write_recording
+
+    t = np.linspace(0.0, 10.0, 101)
+    truth = Track("ground truth", t, np.column_stack([np.cos(t), np.sin(t), 0.1 * t]))
+    fused = []
+    for i, name in enumerate(SETTINGS):
+        offset = 0.01 * (i + 1)
+        cov = np.repeat(np.diag([0.01, 0.01, 0.04 * (i + 1)])[None], len(t), axis=0)
+        fused.append(Track(name, t, truth.pos + [offset, 0.0, 0.0], cov))
+    drift = [Track("raw IMU", t, truth.pos + t[:, None] ** 2), Track("AirIMU", t, truth.pos + 0.1 * t[:, None])]
+    rng = np.random.default_rng(0)
+    n = np.linspace(0.0, 10.0, 2001)
+    imu = ImuSeries(n, 0.4 * rng.standard_normal((len(n), 3)), 9.8 + rng.standard_normal((len(n), 3)),
+                    np.full((len(n), 3), 1e-3), np.full((len(n), 3), 1e-2), np.full((len(n), 3), 4e-6),
+                    np.full((len(n), 3), 1e-4))  # fmt: skip
+    path = write_recording(tmp_path_factory.mktemp("rec") / "run.rrd", fused, truth, drift, (t[::10], truth.pos[::10]),
+                           imu)  # fmt: skip
+    return path, t
+
+
+def _entities(path, blueprint: bool = False) -> dict[str, dict[str, list]]:
+    """Every entity's columns (archetype:component -> rows), chunks concatenated; of the recording, or of the
+    blueprint store the file carries beside it."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(path)
+    stream = reader.stream(store=reader.blueprints()[0]) if blueprint else reader.stream()
+    out = defaultdict(lambda: defaultdict(list))
+    for chunk in stream.to_chunks():
+        batch = chunk.to_record_batch()
+        for name in batch.schema.names:
+            if ":" in name:
+                out[chunk.entity_path][name] += batch.column(name).to_pylist()
+    return out
+
+
+def _views(blueprint) -> dict[str, dict]:
+    """Views by display name: class, origin, contents query and per-entity overrides."""
+    views = {}
+    for path, columns in blueprint.items():
+        if "ViewBlueprint:display_name" in columns:
+            views[columns["ViewBlueprint:display_name"][-1][0]] = {
+                "class": columns["ViewBlueprint:class_identifier"][-1][0],
+                "origin": columns["ViewBlueprint:space_origin"][-1][0],
+                "query": blueprint[f"{path}/ViewContents"]["ViewContents:query"][-1],
+                "hidden": sorted(
+                    p.split("/ViewContents/overrides")[1].removesuffix("/visualizers")
+                    for p, c in blueprint.items()
+                    if p.startswith(f"{path}/ViewContents/overrides/") and c.get("EntityBehavior:visible") == [[False]]
+                ),
+            }
+    return views
+
+
+def test_blueprint_views_and_entity_filters(recording):
+    path, _ = recording
+    blueprint = _entities(path, blueprint=True)
+    views = _views(blueprint)
+    scene = views["trajectories (m)"]
+    assert scene["class"] == "3D" and scene["origin"] == "/world"
+    assert scene["query"] == ["+ /world/**", "- /world/dead_reckoning/**"]  # dead reckoning out of the 3-D view
+    # only the headline setting's ellipsoids are visible by default
+    assert scene["hidden"] == sorted(
+        f"/world/fused/{s}/covariance" for s in ("raw_imu_fixed_cov", "airimu_fixed_cov", "raw_imu_learned_cov")
+    )
+    drift = views["dead reckoning (m)"]
+    assert drift["class"] == "3D" and "+ /world/dead_reckoning/**" in drift["query"]
+    # plots split by unit, the unit in every title
+    expected = {
+        "gyro (raw, rad/s)": ["+ /imu/gyro"],
+        "acc (raw, m/s²)": ["+ /imu/acc"],
+        "gyro correction (rad/s)": ["+ /correction/gyro"],
+        "acc correction (m/s²)": ["+ /correction/acc"],
+        "learned gyro σ (rad/s/√Hz)": ["+ /sigma/gyro"],
+        "learned acc σ (m/s²/√Hz)": ["+ /sigma/acc"],
+        "AirIMU + learned cov (m)": ["+ /error/position/airimu_learned_cov", "+ /error/sigma3/airimu_learned_cov"],
+        "dead-reckoning drift from ground truth (m)": ["+ /error/dead_reckoning/raw_imu",
+                                                       "+ /error/dead_reckoning/airimu"],  # fmt: skip
+    }
+    for name, query in expected.items():
+        assert views[name]["class"] == "TimeSeries" and views[name]["query"] == query, name
+    overview = views["position error, all settings (m)"]["query"]
+    slugs = ("raw_imu_fixed_cov", "airimu_fixed_cov", "raw_imu_learned_cov", "airimu_learned_cov")
+    assert overview == [f"+ /error/position/{s}" for s in slugs]
+    # panels open: blueprint tree and time panel expanded (PanelState 3), on the time line "time"
+    assert blueprint["/blueprint_panel"]["PanelBlueprint:state"] == [[3]]
+    assert blueprint["/time_panel"]["TimePanelBlueprint:state"] == [[3]]
+    assert blueprint["/time_panel"]["TimePanelBlueprint:timeline"] == [["time"]]
+    # tabs per sensor on the plot side
+    tabs = {c["ContainerBlueprint:display_name"][-1][0] for c in blueprint.values() if
+            "ContainerBlueprint:display_name" in c}  # fmt: skip
+    assert {"position error (m)", "gyro (rad/s)", "acc (m/s²)", "dead reckoning"} <= tabs
+
+
+def test_names_colours_and_entity_paths(recording):
+    path, _ = recording
+    entities = _entities(path)
+    assert not [e for e in entities if e.endswith("/norm") or e.endswith("/x")]  # series are named, not leaves
+    assert "/world/dead_reckoning/raw_imu" in entities and "/world/dead_reckoning/airimu" in entities
+    assert not [e for e in entities if e.startswith("/world/raw") or e.startswith("/world/airimu")]
+    truth = entities["/world/ground_truth"]
+    assert truth["LineStrips3D:colors"] == [[_rgba(colors.GROUND_TRUTH)]]
+    assert truth["LineStrips3D:labels"] == [["ground truth"]] and truth["LineStrips3D:show_labels"] == [[True]]
+    assert entities["/world/gps"]["Points3D:colors"] == [[_rgba(colors.GPS)]]
+    palette = set()
+    for setting in SETTINGS:
+        slug = setting.lower().replace(" + ", "_").replace(" ", "_")
+        color = _rgba(colors.setting_color(setting))
+        palette.add(color)
+        # one colour per setting, shared by its line, marker, ellipsoid and error curve
+        assert entities[f"/world/fused/{slug}"]["LineStrips3D:colors"] == [[color]], setting
+        assert entities[f"/world/fused/{slug}/now"]["Points3D:colors"] == [[color]], setting
+        assert entities[f"/world/fused/{slug}/covariance"]["Ellipsoids3D:colors"] == [[color]], setting
+        assert entities[f"/error/position/{slug}"]["SeriesLines:colors"] == [[color]], setting
+        assert entities[f"/error/position/{slug}"]["SeriesLines:names"] == [[setting]], setting
+        assert entities[f"/error/sigma3/{slug}"]["SeriesLines:names"] == [[f"{setting}: 3σ"]], setting
+    assert len(palette) == len(SETTINGS)
+    axes = [_rgba(c) for c in colors.AXES]
+    for entity in ("/imu/gyro", "/imu/acc", "/correction/gyro", "/correction/acc", "/sigma/gyro", "/sigma/acc"):
+        assert entities[entity]["SeriesLines:names"] == [["x", "y", "z"]], entity
+        assert entities[entity]["SeriesLines:colors"] == [axes], entity  # x/y/z alike in every plot
+        assert len(entities[entity]["Scalars:scalars"]) == 2001 and len(entities[entity]["Scalars:scalars"][0]) == 3
+
+
+def test_errors_bounds_markers_and_gps_on_the_time_line(recording):
+    path, t = recording
+    entities = _entities(path)
+    for i, setting in enumerate(SETTINGS):
+        slug = setting.lower().replace(" + ", "_").replace(" ", "_")
+        error = np.ravel(entities[f"/error/position/{slug}"]["Scalars:scalars"])
+        np.testing.assert_allclose(error, 0.01 * (i + 1), atol=1e-12)  # the known offset
+        bound = np.ravel(entities[f"/error/sigma3/{slug}"]["Scalars:scalars"])
+        np.testing.assert_allclose(bound, 3 * np.sqrt(max(0.01, 0.04 * (i + 1))), rtol=1e-12)
+        assert len(entities[f"/world/fused/{slug}/now"]["Points3D:positions"]) == len(t)  # a marker per keyframe
+    drift = np.ravel(entities["/error/dead_reckoning/raw_imu"]["Scalars:scalars"])
+    np.testing.assert_allclose(drift, np.sqrt(3) * t**2, rtol=1e-9)
+    assert len(entities["/world/gps/fix"]["Points3D:positions"]) == 11  # every fix at its time
+    assert len(entities["/world/ground_truth/now"]["Points3D:positions"]) == len(t)
+
+
+def test_colour_families():
+    airimu = [colors.setting_color(s) for s in SETTINGS if s.startswith("AirIMU")]
+    raw = [colors.setting_color(s) for s in SETTINGS if s.startswith("raw")]
+    assert all(b > r for r, _, b in airimu) and all(r > b for r, _, b in raw)  # blues and reds
+    names = [*SETTINGS, *(f"{s} + bias states" for s in SETTINGS), "GTSAM example (raw IMU + bias states)", "fused"]
+    palette = colors.setting_colors(names)
+    assert len(set(palette.values())) == len(names)
+    assert colors.headline(names) == "AirIMU + learned cov" and colors.headline(["fused"]) == "fused"

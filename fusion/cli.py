@@ -319,12 +319,13 @@ def train(
     Launched by torchrun (README: several processes or machines), the processes share each batch."""
     from rich.console import Console
 
+    from fusion.recording import write_training_recording
     from learned_imu.distributed import process_group
     from learned_imu.experiment import train_run
 
     cfg = _overrides(_load_config(config, data_root), epochs, device)
-    with process_group() as world:
-        summary = train_run(cfg, out, progress=progress, world=world)
+    with process_group() as world:  # out/training.rrd: the losses and validation metrics in Rerun, every epoch
+        summary = train_run(cfg, out, progress=progress, world=world, on_epoch=write_training_recording)
     if world is not None and not world.writer:
         return
     Console().print(
@@ -349,6 +350,7 @@ def ablate_imu(
     prints the rows and the paper's tables with its published values beside ours (learned_imu.ablation)."""
     from rich.table import Table
 
+    from fusion.recording import write_training_recording
     from learned_imu.ablation import ablate, paper_tables, write_rows
 
     cfg = _overrides(_load_config(config, data_root), epochs, device)
@@ -356,7 +358,7 @@ def ablate_imu(
         seed_list = None if seeds is None else [int(s) for s in seeds.split(",") if s.strip()]
     except ValueError:
         raise typer.BadParameter(f"--seeds must be integers separated by commas, got {seeds!r}") from None
-    rows = ablate(cfg, out, progress=progress, seeds=seed_list)
+    rows = ablate(cfg, out, progress=progress, seeds=seed_list, on_epoch=write_training_recording)
     console = _wide_console()
     table = Table(title=f"{cfg.name}: IMU ablation, interval {cfg.evaluation.interval} {cfg.evaluation.interval_unit}")
     for column in ("Sequence", "Setting", "Seed", *(c for c, _ in METRIC_COLUMNS), "NSE rot/pos/vel"):

@@ -14,6 +14,8 @@ GROUND_TRUTH: RGB = (25, 25, 25)
 GPS: RGB = (200, 0, 160)
 AXES: tuple[RGB, RGB, RGB] = ((214, 39, 40), (44, 160, 44), (31, 119, 180))  # x, y, z
 AXIS_NAMES = ("x", "y", "z")
+TRAIN: RGB = (60, 60, 60)  # training curves: the training set dark, the validation set orange
+VALIDATION: RGB = (230, 120, 0)
 
 # shades per family, in the order learned, fixed, learned + bias, fixed + bias
 FAMILIES: dict[str, tuple[RGB, RGB, RGB, RGB]] = {

@@ -51,7 +51,10 @@ def ablate_pgo(
     if epochs:
         experiment = with_epochs(experiment, epochs)
     run = Path(config.run)
-    train_run(experiment, run, progress=progress)  # resumes an interrupted run; returns at once if finished
+    from fusion.recording import write_training_recording
+
+    # resumes an interrupted run, drawing its epochs into run/training.rrd; returns at once if finished
+    train_run(experiment, run, progress=progress, on_epoch=write_training_recording)
     model, _ = model_from_checkpoint(run / "best.pt")
     specs = config.sequences or experiment.data.evaluate or experiment.data.val
     results = []

@@ -22,8 +22,8 @@ constants are ``static``. The blueprint: the 3-D view (dead reckoning excluded, 
 visible, the others hidden, one click away) beside tabs of plots split by unit; blueprint and time panels open.
 ``airimu view out.rrd`` opens the viewer.
 
-A training recording (``TrainingRecorder``): ``loss/{train,val}``, ``val/roe_deg``, ``val/rpe_rmse_m``, ``lr`` on
-the time line ``epoch``.
+A training recording (``write_training_recording``, ``<run>/training.rrd``, rewritten after every epoch), time line
+``epoch``: ``loss`` (train and validation), ``val/roe_deg``, ``val/rpe_rmse_m``, ``lr``, ``seconds``.
 """
 
 from __future__ import annotations
@@ -285,6 +285,53 @@ def _view(plot: _Plot) -> rrb.TimeSeriesView:
         name=plot.title, origin="/", contents=[f"+ /{e}" for e in plot.entities], axis_y=axis,
         plot_legend=rrb.PlotLegend(rrb.Corner2D.LeftTop),
     )  # fmt: skip
+
+
+# (entity, metrics.jsonl keys, series names, colours, view title, legend corner: away from the curves' ends)
+TRAINING_SERIES = (
+    ("loss", ("train_loss", "val_loss"), ("train", "validation"), (colors.TRAIN, colors.VALIDATION), "loss",
+     "RightTop"),
+    ("val/roe_deg", ("val_roe_deg",), ("validation ROE",), (colors.VALIDATION,), "validation ROE (deg)", "RightTop"),
+    ("val/rpe_rmse_m", ("val_rpe_rmse_m",), ("validation RPE RMSE",), (colors.VALIDATION,),
+     "validation RPE RMSE (m)", "RightTop"),
+    ("lr", ("lr",), ("learning rate",), (colors.TRAIN,), "learning rate", "RightTop"),
+    ("seconds", ("seconds",), ("wall time",), (colors.TRAIN,), "time since the start (s)", "LeftTop"),
+)  # fmt: skip
+
+
+def write_training_recording(folder: str | Path, history: list[dict]) -> Path:
+    """``folder/training.rrd``: every epoch's losses and validation metrics (``metrics.jsonl`` entries), on the
+    time line ``epoch`` (1 = the first). Written whole and atomically, so it is a valid recording whenever a viewer
+    opens it, resumed runs included; ``learned_imu.experiment.train_run(on_epoch=...)`` calls it after each epoch."""
+    path = Path(folder) / "training.rrd"
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    epochs = np.array([entry["epoch"] + 1 for entry in history], dtype=np.int64)
+    views = []
+    try:
+        rec = rr.RecordingStream("airimu-training", recording_id=str(Path(folder).resolve()))
+        rec.save(str(tmp))
+        for entity, keys, names, rgb, title, corner in TRAINING_SERIES:
+            if not history or not all(key in history[0] for key in keys):
+                continue
+            values = np.array([[entry.get(key, np.nan) for key in keys] for entry in history], dtype=float)
+            rec.log(entity, rr.SeriesLines(names=list(names), colors=list(rgb), widths=[2.0] * len(names)),
+                    static=True)  # fmt: skip
+            rec.log(entity, rr.SeriesPoints(names=list(names), colors=list(rgb), marker_sizes=[3.0] * len(names)),
+                    static=True)  # fmt: skip
+            rec.send_columns(entity, indexes=[rr.TimeColumn("epoch", sequence=epochs)],
+                             columns=rr.Scalars.columns(scalars=values if len(keys) > 1 else values[:, 0]))  # fmt: skip
+            views.append(rrb.TimeSeriesView(name=title, origin=f"/{entity}",
+                                            plot_legend=rrb.PlotLegend(rrb.Corner2D[corner])))  # fmt: skip
+        panels = (rrb.BlueprintPanel(state="expanded"), rrb.SelectionPanel(state="collapsed"),
+                  rrb.TimePanel(state="collapsed", timeline="epoch"))  # fmt: skip
+        blueprint = rrb.Blueprint(rrb.Grid(*views), *panels, auto_views=False)
+        rec.send_blueprint(blueprint, make_active=True)
+        rec.flush()
+        rec.disconnect()
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
 
 
 def _at(track: Track, t: np.ndarray) -> np.ndarray:

@@ -135,22 +135,23 @@ KITTI_TABLES = (
 
 
 def ablate(
-    config: ExperimentConfig, out: str | Path, variants=VARIANTS, progress: bool = True, seeds=None
+    config: ExperimentConfig, out: str | Path, variants=VARIANTS, progress: bool = True, seeds=None, on_epoch=None
 ) -> list[AblationRow]:
     """Train what needs training and score every variant on the evaluation sequences; learned variants once per
-    seed in ``seeds`` (default: the config's ``train.seed`` alone, in ``<out>/<variant.key>``)."""
+    seed in ``seeds`` (default: the config's ``train.seed`` alone, in ``<out>/<variant.key>``); ``on_epoch``: as
+    ``train_run`` takes it."""
     out = Path(out)
     train_seqs = load_sequences(config.data.train, config.data.root)
     eval_seqs = load_sequences(config.data.evaluate or config.data.val, config.data.root)
     rows = []
     for variant in variants:
         if variant.correction != "model" or seeds is None:
-            rows += run_variant(variant, config, out, train_seqs, eval_seqs, progress)
+            rows += run_variant(variant, config, out, train_seqs, eval_seqs, progress, on_epoch)
             continue
         for seed in seeds:
             seeded = dataclasses.replace(config, train=dataclasses.replace(config.train, seed=int(seed)))
             keyed = dataclasses.replace(variant, key=f"{variant.key}_seed{int(seed)}")
-            rows += run_variant(keyed, seeded, out, train_seqs, eval_seqs, progress)
+            rows += run_variant(keyed, seeded, out, train_seqs, eval_seqs, progress, on_epoch)
     return rows
 
 
@@ -207,6 +208,7 @@ def run_variant(
     train_seqs: list[ImuSequence],
     eval_seqs: list[ImuSequence],
     progress: bool = True,
+    on_epoch=None,
 ) -> list[AblationRow]:
     """Score one variant on every evaluation sequence (training it first if it is learned)."""
     if variant.correction == "none":
@@ -227,7 +229,7 @@ def run_variant(
             config = dataclasses.replace(
                 config, loss=dataclasses.replace(config.loss, covariance=variant.covariance_weight)
             )
-        train_run(config, out / variant.key, progress=progress)
+        train_run(config, out / variant.key, progress=progress, on_epoch=on_epoch)
         model, _ = model_from_checkpoint(out / variant.key / "best.pt")
         outputs = [correct(model, s, config.train.remove_gravity) for s in eval_seqs]
         samples = [(o.gyro.numpy(), o.acc.numpy()) for o in outputs]

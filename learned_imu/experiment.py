@@ -23,7 +23,9 @@ from __future__ import annotations
 
 import json
 import logging
+import sys
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -165,20 +167,27 @@ def evaluate_model(model: AirImuNet, sequence: ImuSequence, config: ExperimentCo
 
 
 def train_run(
-    config: ExperimentConfig, folder: str | Path, progress: bool = True, world: World | None = None
+    config: ExperimentConfig,
+    folder: str | Path,
+    progress: bool = True,
+    world: World | None = None,
+    on_epoch: Callable[[Path, list[dict]], None] | None = None,
 ) -> RunSummary:
     """Train (or resume) the run in ``folder``; see the module docstring. ``loss.covariance = 0`` trains
     without the covariance loss (and skips the covariance propagation). ``world``: this process's rank in a
-    ``torchrun`` job (``learned_imu.distributed.process_group``); every rank calls this and returns the summary."""
+    ``torchrun`` job (``learned_imu.distributed.process_group``); every rank calls this and returns the summary.
+    ``on_epoch(folder, history)``: called on the writing rank after each epoch's files are written, with the metrics
+    of every epoch so far (``fusion.recording.write_training_recording`` draws them in Rerun). ``progress``: a bar
+    per epoch on a terminal, one line per epoch elsewhere (a log file, CI)."""
     folder = Path(folder)
     check_batch_size(config.train.batch_size, world)  # before anything is written
     if not is_writer(world):
-        return _train_run(config, folder, progress, world)
+        return _train_run(config, folder, progress, world, on_epoch)
     with folder_lock(folder):  # one writer per run folder: a second airimu train there is refused, naming this one
-        return _train_run(config, folder, progress, world)
+        return _train_run(config, folder, progress, world, on_epoch)
 
 
-def _train_run(config: ExperimentConfig, folder: Path, progress: bool, world: World | None) -> RunSummary:
+def _train_run(config: ExperimentConfig, folder: Path, progress: bool, world: World | None, on_epoch) -> RunSummary:
     writer = is_writer(world)
     if writer:
         folder.mkdir(parents=True, exist_ok=True)
@@ -219,6 +228,10 @@ def _train_run(config: ExperimentConfig, folder: Path, progress: bool, world: Wo
         best = dict(entry) if improved else best
         if writer:
             _write_epoch(folder, cfg_dict, trainer, history, best, improved, trained_on)
+            if on_epoch is not None:
+                on_epoch(folder, history)
+            if progress:
+                _epoch_line(config.name, entry, t.epochs)
         log.info("%s epoch %d: %s", config.name, entry["epoch"], json.dumps(entry))
     # a finished run asked for the scaling later gets it then (the second stage is not repeated)
     stage = t.calibration_steps > 0 and not best.get("calibrated", False)
@@ -308,8 +321,9 @@ def _write_metrics(path: Path, history: list[dict]) -> None:
 
 
 def _progress_bar(enabled: bool, trainer: Trainer, history: list[dict]):
-    """A per-epoch tqdm bar over batches showing the running loss and the last validation metrics."""
-    if not enabled:
+    """A per-epoch tqdm bar over batches showing the running loss and the last validation metrics, on a terminal
+    only: redrawn bars would flood a log file (there, ``_epoch_line`` writes one line per epoch)."""
+    if not enabled or not sys.stderr.isatty():
         return None
     from tqdm.auto import tqdm
 
@@ -329,6 +343,17 @@ def _progress_bar(enabled: bool, trainer: Trainer, history: list[dict]):
             bar.close()
 
     return on_batch
+
+
+def _epoch_line(name: str, entry: dict, epochs: int) -> None:
+    """One line per finished epoch on stderr (above the bar on a terminal): losses, validation metrics, time."""
+    from tqdm.auto import tqdm
+
+    line = f"{name} epoch {entry['epoch'] + 1}/{epochs}: train_loss {entry['train_loss']:.4f}"
+    line += f", val_loss {entry['val_loss']:.4f}"
+    if "val_roe_deg" in entry:
+        line += f", val_roe {entry['val_roe_deg']:.3f} deg, val_rpe_rmse {entry['val_rpe_rmse_m']:.4f} m"
+    tqdm.write(f"{line}, lr {entry['lr']:.2g}, {entry['seconds']:.1f} s", file=sys.stderr)
 
 
 def with_epochs(config: ExperimentConfig, epochs: int) -> ExperimentConfig:

@@ -170,3 +170,44 @@ def test_colour_families():
     palette = colors.setting_colors(names)
     assert len(set(palette.values())) == len(names)
     assert colors.headline(names) == "AirIMU + learned cov" and colors.headline(["fused"]) == "fused"
+
+
+TINY = """
+name: tiny
+data:
+  train: [{dataset: simulator, options: {duration_s: 8.0, seed: 1, device_seed: 5}}]
+  val: [{dataset: simulator, options: {duration_s: 6.0, seed: 2, device_seed: 5}}]
+model: {conv_channels: [8, 16], gru_sizes: [16], decoder_hidden: 16}
+train: {window: 200, every: 50, batch_size: 4, epochs: 2, lr: 3e-3, calibration_steps: 0}
+"""
+
+
+def test_training_is_drawn_in_rerun_and_logged_one_line_per_epoch(tmp_path, capsys):
+    import json
+
+    from fusion.recording import write_training_recording
+    from learned_imu.config import load_config
+    from learned_imu.experiment import train_run
+
+    (tmp_path / "tiny.yaml").write_text(TINY)
+    calls = []
+
+    def on_epoch(folder, history):
+        calls.append(len(history))
+        write_training_recording(folder, history)
+
+    train_run(load_config(tmp_path / "tiny.yaml"), tmp_path / "run", progress=True, on_epoch=on_epoch)
+    assert calls == [1, 2]  # after every epoch, with the metrics so far
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if " epoch " in line]
+    assert [line.split(":")[0] for line in lines] == ["tiny epoch 1/2", "tiny epoch 2/2"]  # stderr is no terminal
+    assert "\r" not in err and "batch/s" not in err  # no redrawn progress bars in a log
+    history = [json.loads(line) for line in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
+    entities = _entities(tmp_path / "run" / "training.rrd")
+    assert entities["/loss"]["SeriesLines:names"] == [["train", "validation"]]
+    np.testing.assert_allclose(entities["/loss"]["Scalars:scalars"],
+                               [[h["train_loss"], h["val_loss"]] for h in history])  # fmt: skip
+    roe = np.ravel(entities["/val/roe_deg"]["Scalars:scalars"])
+    np.testing.assert_allclose(roe, [h["val_roe_deg"] for h in history])
+    views = _views(_entities(tmp_path / "run" / "training.rrd", blueprint=True))
+    assert {"loss", "validation ROE (deg)", "validation RPE RMSE (m)", "learning rate"} <= set(views)

@@ -169,27 +169,24 @@ def _check_noise_flags(gyro: float, acc: float) -> None:
         raise typer.BadParameter(str(error)) from None
 
 
-def _read_with_options(dataset: str, path: str, options: list[str]):
-    """A sequence read with ``key=value`` reader options, each checked against the reader's signature."""
-    import inspect
-
+def _read_with_options(dataset: str, path: str, options: list[str], imu_file: str | None = None):
+    """One sequence read with ``key=value`` reader options (YAML values: ``gt_pos=[px,py,pz]``), each checked
+    against the reader's signature (``learned_imu.datasets.check_options``)."""
     import yaml
 
     from learned_imu.datasets import READERS, read_sequence
 
     if dataset not in READERS:
         raise typer.BadParameter(f"--dataset: unknown reader {dataset!r}; known: {', '.join(sorted(READERS))}")
-    accepted = set(inspect.signature(READERS[dataset]).parameters) - {"path"}
-    parsed = {}
+    parsed = {"imu_file": imu_file} if imu_file else {}
     for item in options:
         key, sep, text = item.partition("=")
         if not sep or not key:
             raise typer.BadParameter(f"--reader-option: expected key=value, got {item!r}")
-        if key not in accepted:
-            raise typer.BadParameter(
-                f"--reader-option: {dataset} has no option {key!r}; its options: {', '.join(sorted(accepted))}"
-            )
-        parsed[key] = yaml.safe_load(text)
+        try:
+            parsed[key] = yaml.safe_load(text)
+        except yaml.YAMLError:
+            parsed[key] = text
     sequence = read_sequence(dataset, path, **parsed)
     if isinstance(sequence, list):
         raise typer.BadParameter(f"{path}: the reader split the sequence at gaps; pass on_gap=keep")
@@ -228,16 +225,6 @@ FIELD_LABELS = {
 }
 
 
-def _read_one(dataset: str, path: str, imu_file: str | None):
-    from learned_imu.datasets import read_sequence
-
-    options = {"imu_file": imu_file} if imu_file else {}
-    sequence = read_sequence(dataset, path, **options)
-    if isinstance(sequence, list):
-        raise typer.BadParameter(f"{path}: the reader split the sequence at gaps; pass one piece")
-    return sequence
-
-
 def _load_config(config: str, data_root: str | None):
     from learned_imu.config import load_config
 
@@ -267,6 +254,7 @@ def evaluate(
     interval: float = typer.Option(1.0, help="evaluation interval, in --interval-unit"),
     interval_unit: str = typer.Option("s", help="'s' (seconds) or 'frames' (IMU samples)"),
     imu_file: str = typer.Option(None, help="EuRoC/TUM-VI: IMU csv relative to the sequence folder"),
+    reader_option: list[str] = typer.Option(None, help=READER_OPTION_HELP),  # noqa: B008 (typer reads repeats as a list)
     checkpoint: str = typer.Option(None, help="a trained model (best.pt): evaluate its corrected IMU"),
     json_out: str = typer.Option(None, "--json", help="write the metrics to this JSON file"),
 ) -> None:
@@ -275,10 +263,15 @@ def evaluate(
     from rich.console import Console
     from rich.table import Table
 
+    from learned_imu.config import INTERVAL_UNITS
     from learned_imu.evaluate import evaluate as run_evaluation
     from learned_imu.io import write_json_atomic
 
-    sequence = _read_one(dataset, path, imu_file)
+    if not (math.isfinite(interval) and interval > 0):
+        raise typer.BadParameter(f"--interval must be a positive number, got {interval}")
+    if interval_unit not in INTERVAL_UNITS:
+        raise typer.BadParameter(f"--interval-unit must be one of {', '.join(INTERVAL_UNITS)}, got {interval_unit!r}")
+    sequence = _read_with_options(dataset, path, reader_option or [], imu_file)
     gyro = acc = None
     label = "raw IMU"
     if checkpoint:
@@ -425,6 +418,7 @@ def export(
     keyframes: str = typer.Option("0.1s", help="keyframe interval like '0.1s', or a file of times (s) per line"),
     out: str = typer.Option(..., help="output .npz (format in learned_imu.export)"),
     imu_file: str = typer.Option(None, help="EuRoC/TUM-VI: IMU csv relative to the sequence folder"),
+    reader_option: list[str] = typer.Option(None, help=READER_OPTION_HELP),  # noqa: B008 (typer reads repeats as a list)
     gyro_noise_density: float = typer.Option(
         None, help="without --checkpoint: gyro noise density, sigma, rad/s/sqrt(Hz) (Kalibr)"
     ),
@@ -437,7 +431,7 @@ def export(
 
     from learned_imu.export import export_preintegration, keyframes_from_spec
 
-    sequence = _read_one(dataset, path, imu_file)
+    sequence = _read_with_options(dataset, path, reader_option or [], imu_file)
     index = keyframes_from_spec(sequence, keyframes)
     if checkpoint:
         from learned_imu.checkpoint import model_from_checkpoint
@@ -462,6 +456,7 @@ def scale_noise_command(
     path: str = typer.Option(..., help="the held-out sequence (not trained on, not evaluated on)"),
     out: str = typer.Option(..., help="the scaled checkpoint to write (may be CHECKPOINT itself)"),
     imu_file: str = typer.Option(None, help="EuRoC/TUM-VI: IMU csv relative to the sequence folder"),
+    reader_option: list[str] = typer.Option(None, help=READER_OPTION_HELP),  # noqa: B008 (typer reads repeats as a list)
 ) -> None:
     """Scale a trained model's noise densities (one factor per sensor) to a held-out sequence's windows by maximum
     likelihood, so that its covariance is calibrated on data it has not seen (learned_imu.train.noise_residuals)."""
@@ -475,7 +470,7 @@ def scale_noise_command(
     payload = load_checkpoint(checkpoint)
     model, config = model_from_checkpoint(checkpoint)
     cfg = from_dict(ExperimentConfig, config, source=f"{checkpoint} (stored config)")
-    sequence = _read_one(dataset, path, imu_file)
+    sequence = _read_with_options(dataset, path, reader_option or [], imu_file)
     if sequence.gt is None:
         raise typer.BadParameter(f"{path}: the sequence has no ground truth; scaling the noise needs it")
     residuals = noise_residuals(model, build_windows([sequence], cfg, None))
@@ -511,17 +506,31 @@ def export_model(
 
 
 def main() -> None:
-    """Console entry point: the toolkit's own errors (bad files, configs, checkpoints) print as one line."""
+    """Console entry point: the toolkit's own errors (bad files, configs, checkpoints, exports, graphs) print as
+    one line (``AIRIMU_DEBUG=1``: the traceback)."""
+    import os
     import sys
 
     try:
         app()
     except Exception as error:
-        errors = sys.modules.get("learned_imu.errors")  # loaded by any command that can raise them
-        if errors is None or not isinstance(error, errors.AirImuError):
+        if os.environ.get("AIRIMU_DEBUG") or not isinstance(error, _own_errors()):
             raise
         print(f"airimu: error: {error}", file=sys.stderr)
         sys.exit(2)
+
+
+def _own_errors() -> tuple[type, ...]:
+    """The toolkit's error types among the loaded modules (a command loads those it can raise): one line each."""
+    import sys
+
+    names = {
+        "learned_imu.errors": ("AirImuError",),
+        "factors.export_file": ("ExportError",),
+        "factors.checks": ("GraphError",),
+        "factors.pim_from_deltas": ("PimLayoutError",),
+    }
+    return tuple(getattr(sys.modules[m], n) for m, ns in names.items() if m in sys.modules for n in ns)
 
 
 if __name__ == "__main__":  # python -m fusion.cli, as torchrun -m launches it

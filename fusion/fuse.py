@@ -165,9 +165,9 @@ def write_outputs(result: Fused, folder: Path, reference: GpsFixes | Gps | None 
     from fusion.figures import plot
     from fusion.graph import with_marginals
     from fusion.pipeline import SequenceResult, record
-    from learned_imu.io import atomic_file, write_json_atomic
+    from learned_imu.io import atomic_file, output_folder, write_json_atomic
 
-    folder.mkdir(parents=True, exist_ok=True)
+    output_folder(folder)
     trajectory = with_marginals(result.solution)
     written = [trajectory.write_tum(folder / "fused.tum")]
     with atomic_file(folder / "marginals.npz", "wb") as f:

@@ -28,6 +28,7 @@ import numpy as np
 from factors import (
     Export,
     GpsFactor,
+    GraphError,
     check_anchored,
     check_values,
     from_export,
@@ -44,7 +45,7 @@ from fusion.initial import (
     priors_on_first,
     sequential_initial_values,
 )
-from learned_imu.errors import ConfigError
+from learned_imu.errors import ConfigError, InputError
 from learned_imu.io import atomic_file
 
 X, V, B = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V, gtsam.symbol_shorthand.B
@@ -132,7 +133,7 @@ class Trajectory:
         keyframe positions and velocities (exact for constant acceleration between keyframes)."""
         t = np.asarray(t, dtype=float)
         if t.size and (t.min() < self.t[0] - 1e-9 or t.max() > self.t[-1] + 1e-9):
-            raise ValueError(f"position_at: times must lie in [{self.t[0]}, {self.t[-1]}] s")
+            raise InputError(f"position_at: times must lie in [{self.t[0]}, {self.t[-1]}] s")
         if len(self.t) == 1:
             return np.repeat(self.pos, len(t), axis=0)
         k = np.clip(np.searchsorted(self.t, t, side="right") - 1, 0, len(self.t) - 2)
@@ -164,6 +165,26 @@ class Solution:
     values: gtsam.Values
     iterations: int
     final_error: float
+
+
+MIN_ALIGN_FIXES = 3  # first position, velocity (and the heading) from the GPS track need three fixes at least
+MIN_ALIGN_SPREAD_SIGMAS = 5.0  # and a horizontal track longer than this many GPS sigmas, or the heading is noise
+
+
+def _check_observable(export: Export, gps: Gps, keyframe: np.ndarray) -> None:
+    """Without a known first state the GPS track must fix the first heading and velocity: a ``GraphError`` when the
+    fused fixes are too few or too close together (the solver would return an arbitrary heading, not an error)."""
+    used = keyframe >= 0
+    pos, sigma = gps.pos[used], gps.sigma[used]
+    spread = float(np.linalg.norm(pos[:, :2] - pos[:1, :2], axis=1).max())
+    need = MIN_ALIGN_SPREAD_SIGMAS * float(np.median(sigma[:, :2]))
+    if used.sum() < MIN_ALIGN_FIXES or spread < need:
+        raise GraphError(
+            f"{export.name}: under-constrained: {int(used.sum())} GPS fix(es) on keyframes spanning {spread:.3g} m "
+            f"horizontally; without a known first state (ground truth or initial_state) the heading and velocity "
+            f"need at least {MIN_ALIGN_FIXES} fixes spread over more than {need:.3g} m "
+            f"({MIN_ALIGN_SPREAD_SIGMAS:g} GPS sigmas)"
+        )
 
 
 def build_graph(
@@ -212,10 +233,11 @@ def build_graph(
                 factor = GpsFactor(X(index), pos, gps_noise(sigma, None), settings.lever_arm_m)
             align_gps.setdefault(int(index), []).append(factor)
     if not gps_factors:
-        raise ValueError(f"{export.path}: no GPS fix lies within half a keyframe interval of a keyframe")
+        raise InputError(f"{export.path}: no GPS fix lies within half a keyframe interval of a keyframe")
 
     first = known_first_state(export, initial_state)
     if first is None:  # no ground truth: align the first state to the GPS track (attitude from gravity + a yaw search)
+        _check_observable(export, gps, keyframe)
         first = aligned_first_state(export, times, gps, imu_factors, align_gps, settings)
         sigmas = ALIGNED_PRIOR_SIGMAS
     else:

@@ -31,7 +31,7 @@ import numpy as np
 from factors import load_export
 from fusion.graph import BiasStates, FusionSettings, Gps, Solution, build_graph, solve
 from learned_imu.config import check_noise_density
-from learned_imu.errors import ConfigError
+from learned_imu.errors import ConfigError, InputError
 from learned_imu.export import export_preintegration, keyframes_every, nearest_samples
 from learned_imu.model import Correction
 from learned_imu.sequence import GpsFixes, ImuSequence, gap_indices
@@ -190,9 +190,9 @@ def gps_for(sequence: ImuSequence, rate_hz: float, sigma_m: float, seed: int, so
     ``"recorded"``: the sequence's fixes decimated to ``rate_hz`` (the seed picks the phase), scored against the
     ground truth where it is valid, else against all fixes; ``"auto"``: simulated when there is ground truth."""
     if source not in GPS_SOURCES:
-        raise ValueError(f"gps_for: source must be one of {GPS_SOURCES}, got {source!r}")
+        raise InputError(f"gps_for: source must be one of {GPS_SOURCES}, got {source!r}")
     if source == "simulated" and sequence.gt is None:
-        raise ValueError(f"{sequence.name}: simulated GPS needs ground truth")
+        raise InputError(f"{sequence.name}: simulated GPS needs ground truth")
     if source != "recorded" and sequence.gt is not None:
         step = max(1, int(round(1.0 / (rate_hz * float(np.median(sequence.dt))))))
         index = np.arange(0, len(sequence), step)
@@ -203,7 +203,7 @@ def gps_for(sequence: ImuSequence, rate_hz: float, sigma_m: float, seed: int, so
         truth = Gps(sequence.t, sequence.gt.pos, np.zeros((len(sequence), 3)))
         return fuse, truth
     if sequence.gps is None:
-        raise ValueError(f"{sequence.name}: PGO needs ground truth or GPS fixes")
+        raise InputError(f"{sequence.name}: PGO needs ground truth or GPS fixes")
     fixes = sequence.gps
     step = recorded_phases(sequence, rate_hz)
     keep = np.arange(seed % step, len(fixes.t), step)
@@ -218,7 +218,7 @@ def fixes_on_samples(sequence: ImuSequence) -> ImuSequence:
     """``sequence`` with only the recorded fixes that fall on an IMU sample (within half a sample period); the
     others (inside a gap of the IMU) are dropped with a warning."""
     if sequence.gps is None:
-        raise ValueError(f"{sequence.name}: no recorded GPS fixes")
+        raise InputError(f"{sequence.name}: no recorded GPS fixes")
     _, on_sample = nearest_samples(sequence, sequence.gps.t)
     if not on_sample.all():
         log.warning("%s: %d of %d GPS fixes lie in gaps of the IMU and are not used", sequence.name,
@@ -231,7 +231,7 @@ def fixes_on_samples(sequence: ImuSequence) -> ImuSequence:
 def recorded_phases(sequence: ImuSequence, rate_hz: float) -> int:
     """How many recorded fixes there are per fused fix at ``rate_hz``: the number of distinct decimations."""
     if sequence.gps is None or len(sequence.gps.t) < 2:
-        raise ValueError(f"{sequence.name}: PGO needs ground truth or GPS fixes")
+        raise InputError(f"{sequence.name}: PGO needs ground truth or GPS fixes")
     return max(1, int(round(1.0 / (rate_hz * float(np.median(np.diff(sequence.gps.t)))))))
 
 
@@ -243,6 +243,8 @@ def ate_m(solution: Solution, truth: Gps, fused: Gps | None = None) -> float:
     inside = (truth.t >= traj.t[0]) & (truth.t <= traj.t[-1])
     if fused is not None:
         inside &= (truth.t >= fused.t[0]) & (truth.t <= fused.t[-1])
+    if not inside.any():
+        raise InputError("ate_m: no reference position lies within the scored span")
     err = traj.position_at(truth.t[inside]) - truth.pos[inside]
     return float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
 
@@ -271,6 +273,11 @@ def run_sequence(
             seeds = min(options.seeds, recorded_phases(sequence, rate)) if recorded else options.seeds
             for seed in range(seeds):
                 fuse, truth = gps_for(sequence, rate, options.gps_sigma_m, seed, options.gps_source)
+                if len(fuse.t) < 2:
+                    raise ConfigError(
+                        f"options.gps_hz: at {rate:g} Hz {sequence.name} ({sequence.t[-1] - sequence.t[0]:.4g} s) gets "
+                        f"{len(fuse.t)} GPS fix; a pose graph scored between fixes needs at least two"
+                    )
                 graph, values = build_graph(export, fuse, fusion, bias=setting.bias)
                 solution = solve(graph, values, export.keyframe_t, fusion)
                 ates.append(ate_m(solution, truth, fuse if options.score_span == "gps" else None))

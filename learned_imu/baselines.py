@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from learned_imu import so3
+from learned_imu.errors import InputError
 from learned_imu.sequence import ImuSequence
 
 
@@ -34,7 +35,7 @@ class ConstantBias:
 def imu_from_ground_truth(sequence: ImuSequence) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The IMU samples implied by the ground truth: gyro (N-1, 3), acc (N-1, 3) and a valid mask (N-1,)."""
     if sequence.gt is None:
-        raise ValueError(f"{sequence.name}: the average bias needs ground truth")
+        raise InputError(f"{sequence.name}: the average bias needs ground truth")
     gt, dt = sequence.gt, sequence.dt[:-1, None]
     rot = torch.as_tensor(gt.rot)
     gyro = so3.log(rot[:-1].mT @ rot[1:]).numpy() / dt
@@ -51,7 +52,7 @@ def average_bias(sequences: list[ImuSequence]) -> ConstantBias:
         acc_err.append(seq.acc[:-1][ok] - acc[ok])
     gyro_err, acc_err = np.concatenate(gyro_err), np.concatenate(acc_err)
     if len(gyro_err) == 0:
-        raise ValueError("average_bias: no sample with valid ground truth")
+        raise InputError("average_bias: no sample with valid ground truth")
     return ConstantBias(gyro_err.mean(axis=0), acc_err.mean(axis=0))
 
 
@@ -99,7 +100,7 @@ def linear_calibration(sequences: list[ImuSequence], block: int = CALIBRATION_BL
     for name in ("gyro", "acc"):
         x, y = np.concatenate(raw[name]), np.concatenate(truth[name])
         if len(x) < 12:
-            raise ValueError(f"linear_calibration: {len(x)} blocks of {block} valid samples, need at least 12")
+            raise InputError(f"linear_calibration: {len(x)} blocks of {block} valid samples, need at least 12")
         design = np.hstack([x, -np.ones((len(x), 1))])
         solution, *_ = np.linalg.lstsq(design, y, rcond=None)  # (4, 3): rows matrix^T, then offset
         fitted[name] = (solution[:3].T.copy(), solution[3].copy())

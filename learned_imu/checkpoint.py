@@ -75,6 +75,9 @@ def model_from_checkpoint(path: str | Path) -> tuple[AirImuNet, dict]:
         model.load_state_dict(payload["trainer"]["model"])
     except (KeyError, RuntimeError) as error:
         raise DataError(path, "trainer.model", f"weights do not fit the stored model config ({error})") from error
+    for name, tensor in model.state_dict().items():
+        if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
+            raise DataError(path, f"trainer.model.{name}", "holds NaN or Inf weights (a diverged or damaged model)")
     model.trained_on = payload.get("trained_on")
     return model.eval(), config
 

@@ -83,7 +83,7 @@ class StreamingStep(nn.Module):
         self, gyro: torch.Tensor, acc: torch.Tensor, conv_history: list[torch.Tensor], gru_hidden: list[torch.Tensor]
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, list[torch.Tensor], list[torch.Tensor]]:
         if gyro.shape[1] % self.block != 0 or gyro.shape[1] == 0:
-            raise ValueError(f"StreamingStep: chunk length must be a positive multiple of {self.block} samples")
+            raise InputError(f"StreamingStep: chunk length must be a positive multiple of {self.block} samples")
         # Encoder, as AirImuNet.stream: each convolution continues from the last inputs of the previous chunk.
         x = torch.cat([acc / self.acc_input_scale_m_s2, gyro], dim=-1).transpose(1, 2)  # (B, 6, M)
         histories: list[torch.Tensor] = []

@@ -12,6 +12,7 @@ import numpy as np
 import torch
 
 from learned_imu import metrics
+from learned_imu.errors import InputError
 from learned_imu.preintegration import NavState, predict, preintegrate
 from learned_imu.sequence import ImuSequence
 from learned_imu.windows import usable_windows
@@ -54,7 +55,7 @@ def evaluate(
     ``interval`` is in seconds (``interval_unit="s"``) or IMU samples (``"frames"``).
     """
     if sequence.gt is None:
-        raise ValueError(f"{sequence.source or sequence.name}: evaluation needs ground truth, the sequence has none")
+        raise InputError(f"{sequence.source or sequence.name}: evaluation needs ground truth, the sequence has none")
     gyro = sequence.gyro if gyro is None else _samples("gyro", gyro, len(sequence))
     acc = sequence.acc if acc is None else _samples("acc", acc, len(sequence))
     length = _window_length(sequence, interval, interval_unit)
@@ -63,7 +64,7 @@ def evaluate(
     ok = usable_windows(sequence, starts, length)
     starts = starts[ok]
     if len(starts) == 0:
-        raise ValueError(
+        raise InputError(
             f"{sequence.name}: no window of {length} samples with valid ground truth "
             f"(sequence has {len(sequence)} samples)"
         )
@@ -105,12 +106,12 @@ def evaluate(
 
 def _window_length(sequence: ImuSequence, interval: float, unit: str) -> int:
     if unit not in INTERVAL_UNITS:
-        raise ValueError(f"interval unit must be one of {INTERVAL_UNITS}, got {unit!r}")
+        raise InputError(f"interval unit must be one of {INTERVAL_UNITS}, got {unit!r}")
     if not interval > 0:
-        raise ValueError(f"interval must be positive, got {interval!r}")
+        raise InputError(f"interval must be positive, got {interval!r}")
     length = int(round(interval / float(np.median(sequence.dt)))) if unit == "s" else int(interval)
     if length < 1 or length >= len(sequence):
-        raise ValueError(
+        raise InputError(
             f"{sequence.name}: an interval of {interval} {unit} ({length} samples) does not fit in the sequence "
             f"({len(sequence)} samples)"
         )
@@ -126,5 +127,5 @@ def _valid_span(valid: np.ndarray) -> tuple[int, int]:
 def _samples(name: str, value, n: int) -> np.ndarray:
     out = np.asarray(value, dtype=float)
     if out.shape != (n, 3) or not np.all(np.isfinite(out)):
-        raise ValueError(f"evaluate: {name} must be finite and shaped ({n}, 3), got {out.shape}")
+        raise InputError(f"evaluate: {name} must be finite and shaped ({n}, 3), got {out.shape}")
     return out

@@ -106,7 +106,7 @@ def build_windows(sequences: list[ImuSequence], config: ExperimentConfig, stride
             parts.append(part)
     if not parts:
         names = ", ".join(s.name for s in sequences)
-        raise ValueError(f"no window of {train.window} samples without a gap or invalid ground truth in: {names}")
+        raise InputError(f"no window of {train.window} samples without a gap or invalid ground truth in: {names}")
     return concat_windows(parts)
 
 
@@ -126,7 +126,7 @@ def correct(model: AirImuNet, sequence: ImuSequence, remove_gravity: bool = Fals
     acc = torch.as_tensor(sequence.acc, dtype=torch.float32, device=device)
     if remove_gravity:
         if sequence.gt is None:
-            raise ValueError(f"{sequence.name}: the model removes gravity with ground truth; the sequence has none")
+            raise InputError(f"{sequence.name}: the model removes gravity with ground truth; the sequence has none")
         g_imu = np.einsum("nji,j->ni", sequence.gt.rot, sequence.gravity)
         g_imu = torch.as_tensor(g_imu, dtype=torch.float32, device=device)
         with torch.no_grad():
@@ -233,11 +233,8 @@ def _train_run(config: ExperimentConfig, folder: Path, progress: bool, world: Wo
             if progress:
                 _epoch_line(config.name, entry, t.epochs)
         log.info("%s epoch %d: %s", config.name, entry["epoch"], json.dumps(entry))
-    # a finished run asked for the scaling later gets it then (the second stage is not repeated)
-    stage = t.calibration_steps > 0 and not best.get("calibrated", False)
-    scale = t.scale_noise_on_val and "noise_scales" not in best
-    if writer and use_cov and (stage or scale):
-        _calibrate_best(folder, cfg_dict, trainer, best, t, stage, scale, trained_on)
+    if writer and use_cov:
+        _finish_calibration(folder, cfg_dict, trainer, best, t, trained_on)
     barrier(world)  # every rank returns once the folder is complete
     return RunSummary(folder, trainer.epochs_done, int(best["epoch"]), best["val_loss"], best["seconds"])
 
@@ -252,6 +249,26 @@ def _write_epoch(
     # writes repeats this epoch; the other order would lose its line from the log
     _write_metrics(folder / "metrics.jsonl", history)
     save_checkpoint(folder / "last.pt", cfg_dict, trainer.state_dict(), best, trained_on)
+
+
+CALIBRATION_KEYS = ("calibrated", "calibration_nll", "noise_scales")  # what _calibrate_best adds to the best record
+
+
+def _finish_calibration(folder: Path, cfg_dict: dict, trainer: Trainer, best: dict, t, trained_on: dict) -> None:
+    """Calibrate the best checkpoint if it is not yet (a finished run asked for the scaling later gets it then; the
+    second stage is never repeated). ``best.pt`` is written before ``last.pt``: after a kill between the two, the
+    record in ``best.pt`` says what was done, and only ``last.pt`` is brought up to date."""
+    stored = load_checkpoint(folder / "best.pt")["best"]
+    if stored.get("epoch") == best.get("epoch"):
+        best = {**best, **{key: stored[key] for key in CALIBRATION_KEYS if key in stored}}
+    stage = t.calibration_steps > 0 and not best.get("calibrated", False)
+    scale = t.scale_noise_on_val and "noise_scales" not in best
+    if stage or scale:
+        _calibrate_best(folder, cfg_dict, trainer, best, t, stage, scale, trained_on)
+        return
+    last = load_checkpoint(folder / "last.pt")
+    if last["best"] != best:
+        save_checkpoint(folder / "last.pt", cfg_dict, last["trainer"], best, trained_on)
 
 
 def _calibrate_best(

@@ -53,12 +53,12 @@ def export_preintegration(
     n = len(sequence)
     keyframe_index = np.asarray(keyframe_index, dtype=np.int64)
     if keyframe_index.ndim != 1 or len(keyframe_index) < 2 or np.any(np.diff(keyframe_index) <= 0):
-        raise ValueError("export: keyframe_index must hold at least two strictly increasing sample indices")
+        raise InputError("export: keyframe_index must hold at least two strictly increasing sample indices")
     if keyframe_index[0] < 0 or keyframe_index[-1] > n - 1:
-        raise ValueError(f"export: keyframe indices must lie in [0, {n - 1}]")
+        raise InputError(f"export: keyframe indices must lie in [0, {n - 1}]")
     if np.any(np.diff(keyframe_index) < 2):
         k = int(np.flatnonzero(np.diff(keyframe_index) < 2)[0])
-        raise ValueError(
+        raise InputError(
             f"export: keyframes {k} and {k + 1} are one sample apart (indices {keyframe_index[k]}, "
             f"{keyframe_index[k + 1]}): one sample's position and velocity noise are one source, so the interval's "
             "covariance is singular; keyframes need at least two samples between them"

@@ -38,6 +38,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from learned_imu.errors import InputError
+
 
 @dataclass(frozen=True, eq=False)
 class WindowErrors:
@@ -84,7 +86,7 @@ def umeyama_alignment(source: np.ndarray, target: np.ndarray) -> tuple[np.ndarra
     ``source``, ``target``: (N, 3) positions. Returns R (3, 3) and t (3,).
     """
     if source.shape != target.shape or source.ndim != 2 or source.shape[1] != 3 or len(source) < 3:
-        raise ValueError(f"alignment needs two (N, 3) arrays with N >= 3, got {source.shape} and {target.shape}")
+        raise InputError(f"alignment needs two (N, 3) arrays with N >= 3, got {source.shape} and {target.shape}")
     mu_s, mu_t = source.mean(axis=0), target.mean(axis=0)
     cov = (target - mu_t).T @ (source - mu_s) / len(source)
     u, _, vt = np.linalg.svd(cov)

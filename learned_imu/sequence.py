@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from learned_imu.errors import DataError
+from learned_imu.errors import DataError, InputError
 
 MAX_GAP_STEPS = 5.0  # a time step longer than this many median steps is a gap
 
@@ -127,13 +127,13 @@ class ImuSequence:
         sample count), with their ground truth and the GPS fixes inside that time span; named ``NAME[start:stop]``
         (e.g. a held-back tail for validation: ``part(0.85, 1.0)``)."""
         if not 0.0 <= start < stop <= 1.0:
-            raise ValueError(f"{self.name}: a part needs 0 <= start < stop <= 1, got {start}, {stop}")
+            raise InputError(f"{self.name}: a part needs 0 <= start < stop <= 1, got {start}, {stop}")
         if (start, stop) == (0.0, 1.0):
             return self
         n = len(self)
         first, last = int(round(start * n)), int(round(stop * n))
         if last - first < 2:
-            raise ValueError(f"{self.name}: part [{start}, {stop}] holds fewer than 2 of its {n} samples")
+            raise InputError(f"{self.name}: part [{start}, {stop}] holds fewer than 2 of its {n} samples")
         cut = slice(first, last)
         gt = None
         if self.gt is not None:

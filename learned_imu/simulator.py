@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from learned_imu.errors import InputError
 from learned_imu.sequence import GpsFixes, GroundTruth, ImuSequence
 
 GRAVITY_M_S2 = 9.81
@@ -62,7 +63,7 @@ class ImuErrorModel:
         """Typical datasheet values of a grade: ``consumer`` (phone-class MEMS), ``industrial`` (ADIS16448-class,
         as on EuRoC), ``tactical`` (FOG/high-end MEMS), ``navigation`` (ring-laser class)."""
         if grade not in GRADES:
-            raise ValueError(f"unknown IMU grade {grade!r}; known grades: {', '.join(GRADES)}")
+            raise InputError(f"unknown IMU grade {grade!r}; known grades: {', '.join(GRADES)}")
         return GRADES[grade]
 
     def noise_densities(self) -> tuple[np.ndarray, np.ndarray]:
@@ -191,9 +192,9 @@ def simulate_with_truth(
 ) -> SimulatedSequence:
     """Like ``simulate`` but also returns the clean IMU and the true biases."""
     if profile not in PROFILES:
-        raise ValueError(f"unknown trajectory profile {profile!r}; known profiles: {', '.join(PROFILES)}")
+        raise InputError(f"unknown trajectory profile {profile!r}; known profiles: {', '.join(PROFILES)}")
     if not duration_s > 0 or not rate_hz > 0:
-        raise ValueError(f"duration_s and rate_hz must be positive, got {duration_s}, {rate_hz}")
+        raise InputError(f"duration_s and rate_hz must be positive, got {duration_s}, {rate_hz}")
     model = error_model or ImuErrorModel.from_grade(grade)
     rng = np.random.default_rng(seed)
     device = rng if device_seed is None else np.random.default_rng([device_seed, 0x1D])  # the IMU's constants

@@ -20,6 +20,7 @@ import numpy as np
 import torch
 
 from learned_imu.distributed import World, from_writer, global_loss, shard, wrap
+from learned_imu.errors import InputError
 from learned_imu.losses import (
     VARIANCE_FLOOR,
     LossWeights,
@@ -77,7 +78,7 @@ class Trainer:
         device: str = "cpu",
     ):
         if batch_size < 1 or len(train) == 0 or len(val) == 0:
-            raise ValueError(f"Trainer: need batch_size >= 1 and windows to train and validate, got {batch_size}")
+            raise InputError(f"Trainer: need batch_size >= 1 and windows to train and validate, got {batch_size}")
         # model (in place), windows and so every preintegration live on ``device``; the shuffling generator and
         # the RNG state kept in checkpoints are the CPU's (on a GPU dropout draws from the CUDA generator, so a
         # resumed GPU run is not bit-exact)
@@ -183,7 +184,7 @@ def calibrate_uncertainty(
 
     heads = [p for name, p in model.named_parameters() if "cov_decoder" in name]
     if not heads:
-        raise ValueError("calibrate_uncertainty: the model has no noise decoders ('*cov_decoder*' parameters)")
+        raise InputError("calibrate_uncertainty: the model has no noise decoders ('*cov_decoder*' parameters)")
     frozen = [(p, p.requires_grad) for p in model.parameters()]
     for p, _ in frozen:
         p.requires_grad_(False)
@@ -284,7 +285,7 @@ def fit_noise_scales(model: AirImuNet, windows: Windows) -> tuple[float, float]:
 def scale_noise(model: AirImuNet, gyro_scale: float, acc_scale: float) -> None:
     """Multiply the model's output noise densities by the given factors (in place, through its buffers)."""
     if not (gyro_scale > 0 and acc_scale > 0):
-        raise ValueError(f"scale_noise: scales must be positive, got {gyro_scale}, {acc_scale}")
+        raise InputError(f"scale_noise: scales must be positive, got {gyro_scale}, {acc_scale}")
     with torch.no_grad():
         model.log_init_gyro_density += math.log(gyro_scale)
         model.log_init_acc_density += math.log(acc_scale)

@@ -19,6 +19,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 import torch
 
+from learned_imu.errors import InputError
 from learned_imu.model import Correction
 from learned_imu.preintegration import NavState
 from learned_imu.sequence import ImuSequence, gap_indices
@@ -108,11 +109,11 @@ def make_windows(
     ``context``: samples of network input before each window (module docstring); the first window starts there,
     and the context too must be free of gaps and invalid ground truth."""
     if sequence.gt is None:
-        raise ValueError(f"{sequence.name}: training windows need ground truth")
+        raise InputError(f"{sequence.name}: training windows need ground truth")
     if context < 0:
-        raise ValueError(f"{sequence.name}: context must be >= 0 samples, got {context}")
+        raise InputError(f"{sequence.name}: context must be >= 0 samples, got {context}")
     if not 1 <= every <= length or context + length >= len(sequence):
-        raise ValueError(
+        raise InputError(
             f"{sequence.name}: need 1 <= every <= length and context + length < {len(sequence)}, "
             f"got every {every}, length {length}, context {context}"
         )
@@ -123,7 +124,7 @@ def make_windows(
     if len(starts) == 0 and allow_empty:
         return None
     if len(starts) == 0:
-        raise ValueError(f"{sequence.name}: no window of {length} samples with valid ground truth")
+        raise InputError(f"{sequence.name}: no window of {length} samples with valid ground truth")
     take = starts[:, None] + np.arange(length)
     fed = starts[:, None] + np.arange(-context, length)  # network input: the context, then the window
     at = slice(every - 1, None, every)
@@ -155,13 +156,13 @@ def _pick(index: torch.Tensor):
 def concat_windows(parts: list[Windows]) -> Windows:
     """Windows of several sequences as one set (same length, supervision and gravity required)."""
     if not parts:
-        raise ValueError("concat_windows: no windows given")
+        raise InputError("concat_windows: no windows given")
     first = parts[0]
     for other in parts[1:]:
         if other.gyro.shape[1] != first.gyro.shape[1] or other.at != first.at or other.context != first.context:
-            raise ValueError("concat_windows: windows differ in length, context or supervised samples")
+            raise InputError("concat_windows: windows differ in length, context or supervised samples")
         if not torch.equal(other.gravity, first.gravity):
-            raise ValueError("concat_windows: sequences have different gravity vectors")
+            raise InputError("concat_windows: sequences have different gravity vectors")
     if len(parts) == 1:
         return first
 

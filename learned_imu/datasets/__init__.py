@@ -12,6 +12,7 @@ import inspect
 from collections.abc import Callable
 from pathlib import Path
 
+from learned_imu.datasets._table import check_input_size
 from learned_imu.datasets.broad import read_broad
 from learned_imu.datasets.csv import read_csv
 from learned_imu.datasets.euroc import read_euroc
@@ -54,6 +55,8 @@ def read_sequence(dataset: str, path: str | Path | None = None, **options) -> Im
     options = check_options(dataset, options, "reader option")
     if path is not None and not Path(path).exists():
         raise DataError(path, "path", "no such file or folder")
+    if path is not None and Path(path).is_file():
+        check_input_size(Path(path))
     try:
         return READERS[dataset](path, **options)
     except (AirImuError, MemoryError, KeyboardInterrupt):

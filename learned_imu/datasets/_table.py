@@ -7,6 +7,7 @@ every line of the file, header and comments included).
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
@@ -17,6 +18,28 @@ import numpy as np
 from learned_imu.errors import DataError
 
 ColumnKey = str | int
+# Far beyond any IMU log (EuRoC flights are 2-3 MB of CSV, a KITTI drive of 100-Hz OXTS a few MB, hours of 1-kHz IMU
+# a few hundred MB): a larger input is refused before it is read line by line into memory.
+# AIRIMU_MAX_INPUT_BYTES overrides it.
+MAX_INPUT_BYTES = 4 * 2**30
+MAX_INPUT_ENV = "AIRIMU_MAX_INPUT_BYTES"
+
+
+def check_input_size(path: Path, field: str = "file") -> None:
+    """A ``DataError`` when the file ``path`` is larger than ``MAX_INPUT_BYTES`` (or ``$AIRIMU_MAX_INPUT_BYTES``)."""
+    from learned_imu.errors import ConfigError
+
+    text = os.environ.get(MAX_INPUT_ENV)
+    try:
+        limit = MAX_INPUT_BYTES if text is None else int(text)
+    except ValueError:
+        raise ConfigError(f"{MAX_INPUT_ENV}: expected a whole number of bytes, got {text!r}") from None
+    size = path.stat().st_size
+    if size > limit:
+        raise DataError(
+            path, field, f"{size / 2**30:.3g} GiB is beyond the {limit / 2**30:.3g} GiB any IMU log fits in (not a "
+            f"log, or a corrupt one?); set {MAX_INPUT_ENV} to a larger number of bytes to read it anyway",
+        )  # fmt: skip
 
 
 def _tokens(line: str, delimiter: str | None) -> list[str]:
@@ -177,6 +200,7 @@ def read_table(
     path = Path(path)
     if not path.is_file():
         raise DataError(path, field, "file not found")
+    check_input_size(path, field)
     names, skip = _find_header(path, delimiter, comments, header)
     try:
         data = np.loadtxt(path, delimiter=delimiter, comments=comments, skiprows=skip, ndmin=2, dtype=np.float64)

@@ -115,6 +115,8 @@ def save_checkpoint(path, config, trainer_state, best, *rest):  # between the wr
     out = real_save(path, config, trainer_state, best, *rest)
     if MOMENT == "between_writes" and path.name == "last.pt" and trainer_state["epochs_done"] == KILL_EPOCH + 1:
         die()
+    if MOMENT == "after_calibrated_best" and path.name == "best.pt" and best.get("calibrated"):
+        die()  # the calibrated best.pt is on disk, last.pt does not know yet
     return out
 
 def write_metrics(path, history):
@@ -157,6 +159,25 @@ def test_sigkill_at_the_worst_moments_of_an_epochs_writes(tmp_path, moment):
         with pytest.raises(DataError, match="not a readable torch checkpoint"):
             load_checkpoint(partial)
     resume_and_check(cmd, run, before, done)
+
+
+def test_sigkill_after_the_calibrated_best_checkpoint_does_not_calibrate_twice(tmp_path):
+    """Killed after the calibrated ``best.pt`` is written and before ``last.pt`` records it: the resumed run takes
+    the calibration from ``best.pt`` (weights unchanged) and only brings ``last.pt`` up to date."""
+    import torch
+
+    cmd, run = train_command(tmp_path), tmp_path / "run"
+    proc = subprocess.run([sys.executable, "-c", KILL_HOOK, "after_calibrated_best", "0", *cmd[1:]],
+                          capture_output=True, timeout=TIMEOUT_S)  # fmt: skip
+    assert proc.returncode == -signal.SIGKILL, proc.stderr.decode()[-2000:]
+    calibrated = load_checkpoint(run / "best.pt")
+    assert calibrated["best"]["calibrated"] and not load_checkpoint(run / "last.pt")["best"].get("calibrated")
+    subprocess.run(cmd, check=True, timeout=TIMEOUT_S, capture_output=True)
+    after = load_checkpoint(run / "best.pt")
+    assert after["best"] == calibrated["best"]
+    for name, tensor in calibrated["trainer"]["model"].items():
+        assert torch.equal(after["trainer"]["model"][name], tensor), name  # not calibrated a second time
+    assert load_checkpoint(run / "last.pt")["best"] == calibrated["best"]
 
 
 # Child process: an export written to a slow device (every write paced at 4 MB/s), killed by the parent mid-write.

@@ -88,20 +88,20 @@ def read_rosbag(
             types = {topic: info.msgtype for topic, info in reader.topics.items()}
             imu_topic = imu_topic or _default_imu_topic(path, types)
             _require_topic(path, types, imu_topic, (IMU_TYPE,), "imu_topic")
-            imu = _collect(reader, imu_topic, stamp, _imu_row)
+            imu = _collect(reader, imu_topic, stamp, _imu_row, path, "imu_topic")
             gt = None
             if gt_topic is not None:
                 kind = _require_topic(path, types, gt_topic, (ODOMETRY_TYPE, *POSE_TYPES), "gt_topic")
-                rows = _collect(reader, gt_topic, stamp, _odometry_row if kind == ODOMETRY_TYPE else _pose_row)
+                row = _odometry_row if kind == ODOMETRY_TYPE else _pose_row
+                rows = _collect(reader, gt_topic, stamp, row, path, "gt_topic")
                 gt = _ground_truth(path, gt_topic, rows, use_twist and kind == ODOMETRY_TYPE, on_duplicate)
             gps = None
             if gps_topic is not None:
                 _require_topic(path, types, gps_topic, (NAVSATFIX_TYPE,), "gps_topic")
-                gps = _gps(path, gps_topic, _collect(reader, gps_topic, stamp, _navsatfix_row), gps_sigma)
+                fixes = _collect(reader, gps_topic, stamp, _navsatfix_row, path, "gps_topic")
+                gps = _gps(path, gps_topic, fixes, gps_sigma)
     except AnyReaderError as err:
         raise DataError(path, "bag", f"cannot read: {err}") from err
-    if imu.shape[0] == 0:
-        raise DataError(path, imu_topic, "no messages on the IMU topic")
     if stamp == "header" and imu.shape[0] > 1 and np.ptp(imu[:, 0]) == 0:
         raise DataError(path, f"{imu_topic}.stamp", "all header stamps are equal (unset?); pass stamp='bag'")
     keep = check_timestamps(imu[:, 0], path, f"{imu_topic}.stamp", on_duplicate=on_duplicate)
@@ -140,14 +140,17 @@ def _require_topic(path: Path, types: dict[str, str], topic: str, allowed: tuple
     return types[topic]
 
 
-def _collect(reader, topic: str, stamp: str, row) -> np.ndarray:
-    """(M, k) array of ``[t, *row(msg)]`` for every message on ``topic``, in bag order."""
+def _collect(reader, topic: str, stamp: str, row, path: Path | None = None, option: str = "") -> np.ndarray:
+    """(M, k) array of ``[t, *row(msg)]`` for every message on ``topic``, in bag order; with ``path``, a topic
+    without messages is a ``DataError`` naming the ``option`` that chose it."""
     connections = [c for c in reader.connections if c.topic == topic]
     out = []
     for connection, bag_ns, raw in reader.messages(connections=connections):
         msg = reader.deserialize(raw, connection.msgtype)
         t = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec if stamp == "header" else 1e-9 * bag_ns
         out.append([t, *row(msg)])
+    if path is not None and not out:
+        raise DataError(path, option, f"topic {topic!r} has no messages")
     return np.asarray(out, dtype=np.float64).reshape(len(out), -1)
 
 

@@ -158,3 +158,22 @@ def test_unset_header_stamps_suggest_bag_time(euroc, tmp_path):
     bag = _write_ros1(tmp_path / "zero.bag", data, "nav_msgs/msg/Odometry")
     with pytest.raises(DataError, match="pass stamp='bag'"):
         read_rosbag(bag)
+
+
+def test_a_topic_without_messages_names_its_option(euroc, tmp_path):
+    """A declared ground-truth topic that holds no message (a recording stopped early, a filtered bag)."""
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    data = {k: v[:300] for k, v in euroc.items()}
+    path = tmp_path / "no_gt.bag"
+    with Writer1(path) as writer:
+        conns = {"/gt": writer.add_connection("/gt", "nav_msgs/msg/Odometry", typestore=ts)}
+        for topic, msgtype, ns, msg in _messages(ts, data, "nav_msgs/msg/Odometry", ros1=True):
+            if topic == "/gt":
+                continue
+            if topic not in conns:
+                conns[topic] = writer.add_connection(topic, msgtype, typestore=ts)
+            writer.write(conns[topic], ns, ts.serialize_ros1(msg, msgtype))
+    assert len(read_rosbag(path, check_units=False)) == 300  # the IMU alone reads
+    with pytest.raises(DataError, match="topic '/gt' has no messages") as err:
+        read_rosbag(path, gt_topic="/gt")
+    assert err.value.field == "gt_topic"

@@ -58,6 +58,10 @@ def ablate_pgo(
 def _run_pgo(config, out, json_out, csv_out, rrd, png, epochs, progress, data_root=None) -> None:
     from rich.table import Table
 
+    if epochs is not None and epochs < 1:
+        raise typer.BadParameter(f"--epochs must be at least 1, got {epochs}")
+    _check_outputs(files={"--json": json_out, "--csv": csv_out, "--rrd": rrd, "--png": png}, folders={"--out": out})
+
     from fusion.figures import plot
     from fusion.pipeline import ablate_pgo as run
     from fusion.pipeline import paper_ate, record, write_table
@@ -123,6 +127,7 @@ def fuse(
 
     if gps_every < 1:
         raise typer.BadParameter(f"--gps-every must be >= 1, got {gps_every}")
+    _check_outputs(folders={"--out": out})
     _check_noise_flags(gyro_noise_density, acc_noise_density)
     keyframe_s = None
     if keyframes != "fixes":
@@ -271,6 +276,7 @@ def evaluate(
         raise typer.BadParameter(f"--interval must be a positive number, got {interval}")
     if interval_unit not in INTERVAL_UNITS:
         raise typer.BadParameter(f"--interval-unit must be one of {', '.join(INTERVAL_UNITS)}, got {interval_unit!r}")
+    _check_outputs(files={"--json": json_out})
     sequence = _read_with_options(dataset, path, reader_option or [], imu_file)
     gyro = acc = None
     label = "raw IMU"
@@ -317,6 +323,7 @@ def train(
     from learned_imu.experiment import train_run
 
     cfg = _overrides(_load_config(config, data_root), epochs, device)
+    _check_outputs(folders={"--out": out})
     with process_group() as world:  # out/training.rrd: the losses and validation metrics in Rerun, every epoch
         summary = train_run(cfg, out, progress=progress, world=world, on_epoch=write_training_recording)
     if world is not None and not world.writer:
@@ -347,6 +354,7 @@ def ablate_imu(
     from learned_imu.ablation import ablate, paper_tables, write_rows
 
     cfg = _overrides(_load_config(config, data_root), epochs, device)
+    _check_outputs(files={"--json": json_out, "--csv": csv_out}, folders={"--out": out})
     try:
         seed_list = None if seeds is None else [int(s) for s in seeds.split(",") if s.strip()]
     except ValueError:
@@ -369,6 +377,18 @@ def ablate_imu(
     for path in (json_out, csv_out):
         if path:
             console.print(f"table written to {path}")
+
+
+def _check_outputs(files: dict | None = None, folders: dict | None = None) -> None:
+    """Output flags of the wrong kind refused before any work: a file flag naming a folder, a folder flag a file."""
+    from pathlib import Path
+
+    for flag, value in (files or {}).items():
+        if value and Path(value).is_dir():
+            raise typer.BadParameter(f"{flag}: {value} is a folder; give the path of a file to write")
+    for flag, value in (folders or {}).items():
+        if value and Path(value).exists() and not Path(value).is_dir():
+            raise typer.BadParameter(f"{flag}: {value} is a file; give a folder")
 
 
 def _wide_console():
@@ -431,6 +451,7 @@ def export(
 
     from learned_imu.export import export_preintegration, keyframes_from_spec
 
+    _check_outputs(files={"--out": out})
     sequence = _read_with_options(dataset, path, reader_option or [], imu_file)
     index = keyframes_from_spec(sequence, keyframes)
     if checkpoint:
@@ -467,6 +488,7 @@ def scale_noise_command(
     from learned_imu.experiment import build_windows
     from learned_imu.train import noise_residuals, scale_noise
 
+    _check_outputs(files={"--out": out})
     payload = load_checkpoint(checkpoint)
     model, config = model_from_checkpoint(checkpoint)
     cfg = from_dict(ExperimentConfig, config, source=f"{checkpoint} (stored config)")
@@ -501,6 +523,7 @@ def export_model(
 
     from learned_imu.deploy import export_checkpoint
 
+    _check_outputs(files={"--out": out})
     written = export_checkpoint(checkpoint, out, format)
     Console().print(f"{format} model of {checkpoint} written to {written}")
 

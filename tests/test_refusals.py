@@ -104,6 +104,12 @@ CLI_CASES = {
                            "reader option 'gravity': expected float"),  # fmt: skip
     "reader option form": (["evaluate", "--dataset", "csv", "--path", "{imu}", "--reader-option", "gravity"],
                            "expected key=value"),  # fmt: skip
+    "json is a folder": (["evaluate", "--dataset", "csv", "--path", "{imu}", "--json", "{tmp}"], "is a folder"),
+    "out is a file": (["fuse", "--dataset", "csv", "--path", "{imu}", "--out", "{imu}"], "--out: "),
+    "export out is a folder": (["export", "--dataset", "csv", "--path", "{imu}", "--out", "{tmp}"], "is a folder"),
+    "pgo epochs 0": (["ablate-pgo", "--config", "pgo_demo.yaml", "--epochs", "0"], "--epochs must be at least 1"),
+    "pgo rrd is a folder": (["ablate-pgo", "--config", "pgo_demo.yaml", "--rrd", "{tmp}"], "--rrd: "),
+    "train out is a file": (["train", "--config", "demo.yaml", "--out", "{imu}"], "--out: "),
 }
 
 

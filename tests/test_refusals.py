@@ -171,6 +171,12 @@ OPTION_CASES = {
     "unknown dataset": ("{dataset: tumvi, path: x}", "unknown dataset 'tumvi'"),
     "not a mapping": ("{dataset: simulator, options: [1, 2]}", "expected a mapping"),
     "object option": ("{dataset: simulator, options: {error_model: {gyro: 1}}}", "options 'error_model'"),
+    "zero rate": ("{dataset: simulator, options: {rate_hz: 0}}", "options 'rate_hz': expected a positive number"),
+    "negative duration": ("{dataset: simulator, options: {duration_s: -5}}", "options 'duration_s': expected a pos"),
+    "NaN GPS sigma": ("{dataset: simulator, options: {gps_sigma_m: .nan}}", "options 'gps_sigma_m': expected a pos"),
+    "unknown profile": ("{dataset: simulator, options: {profile: boat}}", "options 'profile': expected one of"),
+    "unknown gap policy": ("{dataset: euroc, path: x, options: {on_gap: skip}}", "options 'on_gap': expected one of"),
+    "unknown unit": ("{dataset: csv, path: x, options: {time_unit: minutes}}", "options 'time_unit': expected one"),
 }
 
 

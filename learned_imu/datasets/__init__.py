@@ -9,6 +9,7 @@ docstring states its frames, quaternion order and units. Shared parsing and chec
 from __future__ import annotations
 
 import inspect
+import math
 from collections.abc import Callable
 from pathlib import Path
 
@@ -92,7 +93,32 @@ def check_options(dataset: str, options: dict, where: str = "options") -> dict:
         annotation = parameters[key].annotation
         if isinstance(annotation, str) and not _matches(annotation, value):
             raise ConfigError(f"{where} '{key}': expected {annotation}, got {value!r} ({type(value).__name__})")
+        allowed = _choices().get(key)
+        if allowed is not None and value not in allowed:
+            raise ConfigError(f"{where} '{key}': expected one of {', '.join(map(str, allowed))}, got {value!r}")
+        if key in POSITIVE_OPTIONS and value is not None and not (math.isfinite(value) and value > 0):
+            raise ConfigError(f"{where} '{key}': expected a positive number ({POSITIVE_OPTIONS[key]}), got {value!r}")
     return dict(options)
+
+
+# numeric reader and simulator options that must be positive and finite (their unit)
+POSITIVE_OPTIONS = {
+    "duration_s": "s", "rate_hz": "Hz", "gps_rate_hz": "Hz", "gps_sigma_m": "m", "gps_sigma": "m",
+    "gravity": "m/s^2, the magnitude", "vel_window_s": "s",
+}  # fmt: skip
+
+
+def _choices() -> dict[str, tuple]:
+    """Options with a fixed set of values, by name (the same name means the same choice in every reader)."""
+    from learned_imu.datasets import _checks, _rotations, csv, kitti_raw, rosbag
+    from learned_imu.simulator import GRADES, PROFILES
+
+    return {
+        "on_gap": _checks.ON_GAP, "on_duplicate": _checks.ON_DUPLICATE, "on_backward": kitti_raw.ON_BACKWARD,
+        "gps_frame": kitti_raw.GPS_FRAMES, "stamp": rosbag.STAMPS, "quat_order": _rotations.QUAT_ORDERS,
+        "time_unit": tuple(csv.TIME_UNITS), "gyro_unit": tuple(csv.GYRO_UNITS), "acc_unit": tuple(csv.ACC_UNITS),
+        "profile": PROFILES, "grade": tuple(GRADES),
+    }  # fmt: skip
 
 
 def _check_size(value, where: str) -> None:

@@ -190,6 +190,39 @@ def test_sequence_options_are_checked_against_the_signature(case, tmp_path):
     assert str(path) in str(error.value) and "data.train[0]" in str(error.value)
 
 
+NON_POSITIVE = st.one_of(st.floats(max_value=0.0), st.sampled_from([float("nan"), float("inf"), -float("inf")]))
+BAD_NUMBERS = {
+    "train.lr": NON_POSITIVE,
+    "train.batch_size": st.integers(max_value=0),
+    "train.epochs": st.integers(max_value=0),
+    "train.window": st.integers(max_value=1),
+    "train.plateau_factor": st.one_of(st.floats(min_value=1.0), st.floats(max_value=0.0)),
+    "model.dropout": st.one_of(st.floats(min_value=1.0), st.floats(max_value=-1e-9)),
+    "evaluation.interval": NON_POSITIVE,
+    "loss.covariance": st.one_of(st.floats(max_value=-1e-12), st.just(float("nan"))),
+}
+
+
+@pytest.mark.parametrize("key", sorted(BAD_NUMBERS))
+@settings(max_examples=15, deadline=None)
+@given(data=st.data())
+def test_config_numbers_out_of_range_name_the_key(key, data):
+    import tempfile
+
+    import yaml
+
+    section, name = key.split(".")
+    value = data.draw(BAD_NUMBERS[key], label=key)
+    config = {"name": "x", "data": {"train": [{"dataset": "simulator"}], "val": [{"dataset": "simulator"}]},
+              section: {name: value}}  # fmt: skip
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "bad.yaml"
+        path.write_text(yaml.safe_dump(config))
+        with pytest.raises(ConfigError, match=key.replace(".", r"\.")) as error:
+            load_config(path)
+    assert str(path) in str(error.value)
+
+
 def test_nested_yaml_aliases_are_refused_before_they_expand(tmp_path):
     """~10^9 elements in a few hundred bytes: refused by size, never expanded (``dataclasses.asdict`` hung on it)."""
     levels = ["a0: &a0 [1, 1, 1, 1, 1, 1, 1, 1, 1, 1]"]

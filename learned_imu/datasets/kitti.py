@@ -85,9 +85,13 @@ def read_kitti(
 def _locate(path: str | Path | None, name: str) -> Path:
     if path is not None:
         return Path(path) / name
-    import gtsam  # only here: learned_imu never imports gtsam otherwise
+    import importlib.util
 
-    return Path(gtsam.findExampleDataFile(name))
+    spec = importlib.util.find_spec("gtsam")  # located, not imported: learned_imu never imports gtsam
+    found = Path(spec.origin).parent / "Data" / name if spec and spec.origin else None
+    if found is None or not found.is_file():
+        raise DataError(name, "path", "no path given and gtsam's example data (gtsam/Data) not found; pass path=")
+    return found
 
 
 def read_gps(path: Path, sigma: float) -> GpsFixes:

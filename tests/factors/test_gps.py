@@ -8,24 +8,11 @@ import pytest
 from gtsam.symbol_shorthand import X
 
 from factors.gps import GpsFactor, gps_noise
+from tests.helpers import error_jacobian
 
 
 def random_pose(rng: np.random.Generator) -> gtsam.Pose3:
     return gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3)), rng.normal(size=3) * 10)
-
-
-def numerical_jacobian(factor: gtsam.NonlinearFactor, values: gtsam.Values, key: int, eps: float = 1e-6):
-    """Central differences of the unwhitened error w.r.t. the Pose3 tangent at ``key`` (float64)."""
-    pose = values.atPose3(key)
-    cols = []
-    for i in range(6):
-        d = np.zeros(6)
-        d[i] = eps
-        plus, minus = gtsam.Values(values), gtsam.Values(values)
-        plus.update(key, pose.retract(d))
-        minus.update(key, pose.retract(-d))
-        cols.append((factor.unwhitenedError(plus) - factor.unwhitenedError(minus)) / (2 * eps))
-    return np.stack(cols, axis=1)
 
 
 def test_zero_lever_arm_equals_gtsam_gps_factor():
@@ -55,7 +42,7 @@ def test_lever_arm_jacobian_equals_numerical_derivative():
         expected = pose.translation() + pose.rotation().matrix() @ lever - factor.position_m
         np.testing.assert_allclose(factor.unwhitenedError(values), expected, atol=1e-12)
         analytic = factor.linearize(values).jacobian()[0]  # whitened by sigma = 1
-        np.testing.assert_allclose(analytic, numerical_jacobian(factor, values, X(3)), atol=1e-8)
+        np.testing.assert_allclose(analytic, error_jacobian(factor, values, X(3)), atol=1e-8)
 
 
 def test_robust_noise_downweights_an_outlier():

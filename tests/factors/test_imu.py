@@ -8,35 +8,7 @@ import pytest
 from gtsam.symbol_shorthand import B, V, X
 
 from factors.imu import LearnedImuFactor
-
-GRAVITY = 9.81
-
-
-def gtsam_pim(seed: int, n: int = 200, dt: float = 0.005) -> gtsam.PreintegratedImuMeasurements:
-    rng = np.random.default_rng(seed)
-    params = gtsam.PreintegrationParams.MakeSharedU(GRAVITY)
-    params.setGyroscopeCovariance(np.eye(3) * 1e-4)
-    params.setAccelerometerCovariance(np.eye(3) * 1e-3)
-    params.setIntegrationCovariance(np.eye(3) * 1e-8)
-    pim = gtsam.PreintegratedImuMeasurements(params, gtsam.imuBias.ConstantBias())
-    for _ in range(n):
-        pim.integrateMeasurement(rng.normal(0, 2, 3) + [0, 0, GRAVITY], rng.uniform(-1.5, 1.5, 3), dt)
-    return pim
-
-
-def factor_from_pim(pim) -> LearnedImuFactor:
-    return LearnedImuFactor(
-        X(0),
-        V(0),
-        X(1),
-        V(1),
-        pim.deltaRij().matrix(),
-        pim.deltaPij(),
-        pim.deltaVij(),
-        pim.deltaTij(),
-        pim.preintMeasCov(),
-        gravity=[0.0, 0.0, -GRAVITY],
-    )
+from tests.helpers import error_jacobian, factor_from_pim, factor_with_bias_from_samples, gtsam_pim
 
 
 def random_values(rng: np.random.Generator, pim=None) -> gtsam.Values:
@@ -84,20 +56,8 @@ def test_jacobians_equal_numerical_derivatives():
     values = random_values(rng)
     jacobians = [np.zeros((9, 6)), np.zeros((9, 3)), np.zeros((9, 6)), np.zeros((9, 3))]
     factor._evaluate(factor, values, jacobians)
-    eps = 1e-6
-    for index, (key, dim) in enumerate(((X(0), 6), (V(0), 3), (X(1), 6), (V(1), 3))):
-        numeric = np.zeros((9, dim))
-        for c in range(dim):
-            d = np.zeros(dim)
-            d[c] = eps
-            plus, minus = gtsam.Values(values), gtsam.Values(values)
-            if dim == 6:
-                plus.update(key, values.atPose3(key).retract(d))
-                minus.update(key, values.atPose3(key).retract(-d))
-            else:
-                plus.update(key, values.atVector(key) + d)
-                minus.update(key, values.atVector(key) - d)
-            numeric[:, c] = (factor.unwhitenedError(plus) - factor.unwhitenedError(minus)) / (2 * eps)
+    for index, key in enumerate((X(0), V(0), X(1), V(1))):
+        numeric = error_jacobian(factor, values, key)
         assert np.abs(jacobians[index] - numeric).max() < 1e-6 * max(1.0, np.abs(numeric).max()), index
 
 
@@ -159,41 +119,6 @@ def test_bad_measurement_raises(field, value, message):
         LearnedImuFactor(X(0), V(0), X(1), V(1), **args)
 
 
-def factor_with_bias_from_samples(seed: int, n: int = 200, dt: float = 0.005):
-    """Our factor built from learned_imu.preintegrate (deltas, covariance, bias Jacobian), and GTSAM's pim of the
-    same samples."""
-    import torch
-
-    from learned_imu import preintegrate
-
-    rng = np.random.default_rng(seed)
-    gyro = rng.uniform(-1.0, 1.0, (n, 3))
-    acc = rng.normal(0, 2, (n, 3)) + [0, 0, GRAVITY]
-    pre = preintegrate(torch.tensor(gyro), torch.tensor(acc), dt, 1e-4, 1e-3, at=-1, bias_jacobian=True)
-    ours = LearnedImuFactor(
-        X(0),
-        V(0),
-        X(1),
-        V(1),
-        pre.rot[0].numpy(),
-        pre.pos[0].numpy(),
-        pre.vel[0].numpy(),
-        pre.dt[0].item(),
-        pre.cov[0].numpy(),
-        gravity=[0.0, 0.0, -GRAVITY],
-        bias=B(0),
-        bias_jacobian=pre.bias_jacobian[0].numpy(),
-    )
-    params = gtsam.PreintegrationParams.MakeSharedU(GRAVITY)
-    params.setGyroscopeCovariance(np.eye(3) * 1e-4)
-    params.setAccelerometerCovariance(np.eye(3) * 1e-3)
-    params.setIntegrationCovariance(np.zeros((3, 3)))
-    pim = gtsam.PreintegratedImuMeasurements(params, gtsam.imuBias.ConstantBias())
-    for k in range(n):
-        pim.integrateMeasurement(acc[k], gyro[k], dt)
-    return ours, pim
-
-
 def test_bias_key_jacobians_equal_numerical_derivatives():
     ours, pim = factor_with_bias_from_samples(3)
     rng = np.random.default_rng(4)
@@ -201,25 +126,8 @@ def test_bias_key_jacobians_equal_numerical_derivatives():
     values.update(B(0), gtsam.imuBias.ConstantBias(rng.normal(0, 0.1, 3), rng.normal(0, 0.01, 3)))
     jacobians = [np.zeros((9, d)) for d in (6, 3, 6, 3, 6)]
     ours._evaluate(ours, values, jacobians)
-    eps = 1e-6
     for index, key in enumerate((X(0), V(0), X(1), V(1), B(0))):
-        cols = []
-        for c in range(jacobians[index].shape[1]):
-            d = np.zeros(jacobians[index].shape[1])
-            d[c] = eps
-            plus, minus = gtsam.Values(values), gtsam.Values(values)
-            if key == B(0):
-                b = values.atConstantBias(key).vector()
-                plus.update(key, gtsam.imuBias.ConstantBias((b + d)[:3], (b + d)[3:]))
-                minus.update(key, gtsam.imuBias.ConstantBias((b - d)[:3], (b - d)[3:]))
-            elif len(d) == 6:
-                plus.update(key, values.atPose3(key).retract(d))
-                minus.update(key, values.atPose3(key).retract(-d))
-            else:
-                plus.update(key, values.atVector(key) + d)
-                minus.update(key, values.atVector(key) - d)
-            cols.append((ours.unwhitenedError(plus) - ours.unwhitenedError(minus)) / (2 * eps))
-        numeric = np.stack(cols, axis=1)
+        numeric = error_jacobian(ours, values, key)
         assert np.abs(jacobians[index] - numeric).max() < 1e-6 * max(1.0, np.abs(numeric).max()), index
 
 

@@ -1,7 +1,6 @@
 """Property-based tests (hypothesis): the analytic Jacobians of LearnedImuFactor (with and without a bias key) and
 GpsFactor equal central numerical derivatives in float64 at random states, measurements and noise. Derandomized,
-so every run checks the same examples. The measurement builders and the Pose3 numerical derivative are the ones of
-test_imu.py and test_gps.py."""
+so every run checks the same examples. The measurement builders and the numerical derivative are ``tests.helpers``'."""
 
 from __future__ import annotations
 
@@ -13,8 +12,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from factors.gps import GpsFactor, gps_noise
-from tests.factors.test_gps import numerical_jacobian
-from tests.factors.test_imu import factor_from_pim, factor_with_bias_from_samples, gtsam_pim
+from tests.helpers import error_jacobian, factor_from_pim, factor_with_bias_from_samples, gtsam_pim
 
 PROPERTY = settings(
     max_examples=40,
@@ -23,7 +21,6 @@ PROPERTY = settings(
     database=None,
     suppress_health_check=[HealthCheck.too_slow],
 )
-EPS = 1e-6  # central-difference step on each tangent coordinate
 # a rotation of angle pi has two logarithms: near it the error's rotation part jumps and no derivative exists
 MAX_ERROR_ANGLE_RAD = np.pi - 0.05
 
@@ -37,26 +34,8 @@ def poses(draw, position_bound: float = 50.0) -> gtsam.Pose3:
     return gtsam.Pose3(gtsam.Rot3.Expmap(draw(vectors(np.pi))), draw(vectors(position_bound)))
 
 
-def numerical_vector_jacobian(factor, values: gtsam.Values, key: int, dim: int) -> np.ndarray:
-    """Central differences of the unwhitened error w.r.t. a vector key (``Vector3``) or a bias key (6)."""
-    cols = []
-    for c in range(dim):
-        d = np.zeros(dim)
-        d[c] = EPS
-        plus, minus = gtsam.Values(values), gtsam.Values(values)
-        if key == B(0):
-            b = values.atConstantBias(key).vector()
-            plus.update(key, gtsam.imuBias.ConstantBias((b + d)[:3], (b + d)[3:]))
-            minus.update(key, gtsam.imuBias.ConstantBias((b - d)[:3], (b - d)[3:]))
-        else:
-            plus.update(key, values.atVector(key) + d)
-            minus.update(key, values.atVector(key) - d)
-        cols.append((factor.unwhitenedError(plus) - factor.unwhitenedError(minus)) / (2 * EPS))
-    return np.stack(cols, axis=1)
-
-
 def assert_jacobian_close(analytic: np.ndarray, numeric: np.ndarray, what) -> None:
-    """Agreement to 1e-6 relative to the derivative's size (central differences with EPS = 1e-6 in float64)."""
+    """Agreement to 1e-6 relative to the derivative's size (central differences with JACOBIAN_STEP in float64)."""
     assert np.abs(analytic - numeric).max() < 1e-6 * max(1.0, np.abs(numeric).max()), what
 
 
@@ -98,10 +77,7 @@ def test_imu_factor_jacobians_equal_numerical_derivatives(
     error = factor._evaluate(factor, values, jacobians)
     np.testing.assert_allclose(error, factor.unwhitenedError(values), rtol=0, atol=1e-12)
     for key, analytic in zip(keys, jacobians, strict=True):
-        if key in (X(0), X(1)):
-            numeric = numerical_jacobian(factor, values, key, EPS)
-        else:
-            numeric = numerical_vector_jacobian(factor, values, key, analytic.shape[1])
+        numeric = error_jacobian(factor, values, key)
         assert_jacobian_close(analytic, numeric, gtsam.DefaultKeyFormatter(key))
 
 
@@ -122,4 +98,4 @@ def test_gps_factor_error_and_jacobian_equal_the_model(pose, measured, lever, si
     np.testing.assert_allclose(factor.unwhitenedError(values), expected, rtol=0, atol=1e-12 * scale)
     whitened, _ = factor.linearize(values).jacobian()
     analytic = whitened * sigma[:, None]
-    assert_jacobian_close(analytic, numerical_jacobian(factor, values, X(7), EPS), "X(7)")
+    assert_jacobian_close(analytic, error_jacobian(factor, values, X(7)), "X(7)")

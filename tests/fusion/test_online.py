@@ -19,7 +19,7 @@ from learned_imu.errors import InputError
 from learned_imu.export import export_preintegration, keyframes_every
 from learned_imu.model import AirImuNet, correct_sequence
 from learned_imu.simulator import simulate
-from tests.conftest import REPO
+from tests.helpers import REPO
 
 X, V = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V
 DENSITIES = (1e-3**2, 1e-2**2)  # rad^2/s, m^2/s^3: inflated over the consumer grade's white noise for its biases

@@ -37,8 +37,8 @@ class GpsFactor(gtsam.GPSFactorArm):
 
     Deliberately not a Python ``gtsam.CustomFactor``: inside GTSAM's optimisers pybind11 hands a Python callback a
     *copy* of the whole ``Values`` (the optimiser's own values are not Python objects), so a Python factor costs
-    O(graph size) per evaluation and a graph of them O(N^2) per iteration (a 2,700-state graph of Python GPS factors:
-    2.9 s per LM iteration; with this class: milliseconds).
+    O(graph size) per evaluation and a graph of them O(N^2) per iteration (measured: BENCHMARKS.md, "Design
+    measurements").
 
     Args:
         key: the ``gtsam.Pose3`` key, e.g. ``gtsam.symbol_shorthand.X(i)``.

@@ -6,7 +6,7 @@ with half a sample period of tolerance: ``export.keyframes_every`` for uniform r
 correct it with the model in streaming mode (``AirImuNet.stream``, carried GRU state: what a one-pass
 ``correct_sequence`` gives) or take the raw samples with fixed noise; preintegrate it with GTSAM's own
 preintegration and the per-sample learned noise (``factors.learned_pim``: the export's ``learned_imu.preintegrate``
-route costs ~6 ms of torch call overhead per interval, this ~0.3 ms; the two agree to GTSAM's tangent-vs-manifold
+route pays torch's call overhead per interval, this one a fraction of it; the two agree to GTSAM's tangent-vs-manifold
 discretisation, well inside the 1 cm online-vs-batch check); wrap it in GTSAM's C++ ``ImuFactor``, predict
 the new keyframe through it, and add it with its GPS factors to ``gtsam.ISAM2`` (or an
 ``IncrementalFixedLagSmoother``). GPS fixes attach to the nearest keyframe (the earlier on a tie) without
@@ -15,8 +15,8 @@ interpolation, as in ``fusion.graph``: choose ``keyframe_s`` so that keyframes f
 Keys: ``X(k)`` (``Pose3`` world <- IMU), ``V(k)`` (world velocity, m/s), ``B(k)``. Only C++ factors enter the
 smoother (a Python ``CustomFactor`` gets a copy of all values per call). The samples are corrected, so each
 ``ImuFactor`` sees a zero bias as in the batch graph, but through its own ``B(k)`` held by a ``NonlinearEquality``
-rather than one shared ``B(0)``: a key in every factor sits in ISAM2's root clique and updates touch all factors
-(10 minutes at 0.1 s keyframes: update + estimate grew from 1.6 to 58 ms with ``B(0)``, 0.6 to 3.3 ms with ``B(k)``).
+rather than one shared ``B(0)``: a key in every factor sits in ISAM2's root clique and updates touch all factors,
+so the update time grows with the whole trajectory (BENCHMARKS.md, "Design measurements").
 The solution is the same (the bias is exactly zero either way); ISAM2 eliminates the constraint's clique by QR
 (``EliminatePreferCholesky``), so no tight prior is needed. Latency: BENCHMARKS.md ("Online fusion").
 """
@@ -43,9 +43,9 @@ log = logging.getLogger(__name__)
 X, V, B = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V, gtsam.symbol_shorthand.B
 SMOOTHERS = ("isam2", "fixed_lag")
 # ISAM2 relinearises a variable whose update exceeds this (rad, m, m/s), checked at every update from the root down
-# only as far as cliques need it (partial check: a full check relinearised far-back stretches of the trajectory,
-# 13 ms mean update after 5 minutes against 3.8 ms). GTSAM's default threshold 0.1 left 8 mm between the online and
-# the batch LM solution of a 60 s simulated flight; 0.01 leaves 2 mm.
+# only as far as cliques need it (partial check: a full check relinearised far-back stretches of the trajectory and
+# made updates several times slower). GTSAM's default threshold 0.1 left the online solution further from the batch
+# LM one than this; both measured in BENCHMARKS.md, "Design measurements".
 RELINEARIZE_THRESHOLD = 0.01
 RATE_CHECK_SAMPLES = 20  # samples seen before the stream's rate is compared with the model's training rate
 
@@ -80,7 +80,7 @@ class OnlineFusion:
         model: an ``AirImuNet`` in eval mode, or None for the raw samples with ``gyro_cov`` / ``acc_cov``.
         gravity: (3,) gravity vector in the world frame, m/s^2.
         initial_state: (rot (3, 3) world <- IMU, pos (3,) m, vel (3,) m/s) at the first IMU sample: the prior's mean.
-        keyframe_s: keyframe interval, s (each keyframe costs ~10-20 ms of CPU, see BENCHMARKS.md).
+        keyframe_s: keyframe interval, s (each keyframe costs CPU time: BENCHMARKS.md, "Online fusion").
         gyro_cov, acc_cov: noise densities without a model, sigma^2: rad^2/s and m^2/s^3 (float or (3,)).
         smoother: ``"isam2"`` (keeps every keyframe) or ``"fixed_lag"`` (keeps the last ``lag_s`` seconds; an older
             keyframe's trajectory entry is its estimate when it left the window).
@@ -276,7 +276,7 @@ class OnlineFusion:
         k = self._in_graph
         s = self._samples[:end]
         # GTSAM's own preintegration with the learned per-sample noise: for the ~20-200 samples of one interval it
-        # costs ~0.3 ms, against ~6 ms for learned_imu.preintegrate + pim_from_deltas (torch call overhead)
+        # is much cheaper than learned_imu.preintegrate + pim_from_deltas (torch call overhead; BENCHMARKS.md)
         pim = learned_pim(s[:, 0:3], s[:, 3:6], np.diff(self._t[: end + 1]), s[:, 6:9], s[:, 9:12], self._gravity)
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         zero = gtsam.imuBias.ConstantBias()

@@ -383,3 +383,15 @@ def test_a_killed_writers_temporary_is_removed_by_the_next_write(tmp_path):
     with atomic_file(target, "wb") as f:
         f.write(b"whole")
     assert target.read_bytes() == b"whole" and not dead.exists() and alive.exists()
+
+
+def test_a_remove_gravity_model_on_data_without_ground_truth(flight):
+    import dataclasses
+
+    from learned_imu.experiment import correct
+
+    model = build_model(ModelConfig(conv_channels=(8, 16), gru_sizes=(16,), decoder_hidden=16)).eval()
+    blind = dataclasses.replace(flight, gt=None)
+    with pytest.raises(InputError, match="removes gravity with ground truth; the sequence has none"):
+        correct(model, blind, remove_gravity=True)
+    assert correct(model, blind).gyro.shape == flight.gyro.shape  # the same model without it runs

@@ -54,7 +54,7 @@ def test_timestamp_anomalies_get_clear_errors_and_the_repair_options(shared_data
         read_sequence("kitti_raw", path, on_backward="drop", on_duplicate="drop")
     parts = read_sequence("kitti_raw", path, on_backward="drop", on_duplicate="drop", on_gap="split")
     assert len(parts) == 3 and all(np.all(np.diff(p.t) < 0.02) for p in parts)
-    with pytest.raises(ValueError, match="on_backward must be one of"):
+    with pytest.raises(ValueError, match="reader option 'on_backward': expected one of error, drop"):
         read_sequence("kitti_raw", path, on_backward="sort")
 
 

@@ -28,6 +28,7 @@ def test_help_lists_commands_without_importing_torch_gtsam_or_rerun():
     assert "HEAVY: []" in out
 
 
+@pytest.mark.slow
 def test_demo_runs_through_the_console_script(tmp_path):
     script = Path(sys.executable).with_name("airimu")
     env = {**os.environ, "COLUMNS": "200"}  # no line wrapping by rich
@@ -80,6 +81,7 @@ train: {window: 200, every: 50, batch_size: 4, epochs: 2, lr: 3e-3}
 """
 
 
+@pytest.mark.slow
 def test_train_then_evaluate_and_export_with_the_checkpoint(shared_data, tmp_path):
     from typer.testing import CliRunner
 

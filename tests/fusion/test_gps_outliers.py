@@ -47,6 +47,7 @@ def fused_ate(export, fixes: Gps, truth: Gps, robust: str | None) -> float:
     return ate_m(solve(graph, values, export.keyframe_t, settings), truth)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1])
 def test_robust_gps_factor_keeps_ate_within_twice_the_clean_run(setup, seed):
     seq, export = setup

@@ -72,6 +72,7 @@ def test_gps_far_from_keyframes_is_an_error(setup):
         build_graph(export, far)
 
 
+@pytest.mark.slow
 def test_without_ground_truth_the_first_state_is_aligned_to_the_gps_track(tmp_path):
     """No known first state (as on KITTI): roll/pitch from gravity and the heading found by search, whatever the
     platform's true heading; the fused trajectory is as good as with the true first state."""

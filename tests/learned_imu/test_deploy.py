@@ -102,6 +102,7 @@ def exported(request, tmp_path_factory):
     return model, export_model(model, folder / "m.onnx", "onnx"), export_model(model, folder / "m.pt", "torchscript")
 
 
+@pytest.mark.slow
 def test_onnx_streaming_equals_pytorch_stream_and_correct_sequence(exported):
     model, onnx_path, _ = exported
     n = sum(CHUNKS)

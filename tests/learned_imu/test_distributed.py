@@ -29,6 +29,8 @@ from learned_imu.distributed import World, check_batch_size, shard, world_from_e
 from learned_imu.errors import ConfigError
 from learned_imu.experiment import RUN_FILES, train_run, with_epochs
 
+pytestmark = pytest.mark.slow  # real processes: a torchrun-style process group training
+
 EPOCHS = 3  # one in one process, then two in two processes
 CONFIG_YAML = f"""
 name: distributed

@@ -25,6 +25,8 @@ from learned_imu.errors import DataError
 from learned_imu.export import export_preintegration, keyframes_every
 from learned_imu.simulator import ImuErrorModel, simulate
 
+pytestmark = pytest.mark.slow  # real processes: training runs and SIGKILLs
+
 AIRIMU = str(Path(sys.executable).with_name("airimu"))
 EPOCHS = 6
 CONFIG_YAML = f"""

@@ -82,6 +82,7 @@ def test_covariance_matches_gtsam_default_tangent_preintegration(max_rate):
         assert rel_err(out.cov[k], cov[k]) < 0.01, k
 
 
+@pytest.mark.slow
 def test_covariance_equals_sample_loop_with_per_sample_noise():
     gyro, acc = imu_samples(300, max_rate=3.0, seed=3, batch=(2,))
     rng = np.random.default_rng(4)
@@ -94,6 +95,7 @@ def test_covariance_equals_sample_loop_with_per_sample_noise():
         assert rel_err(getattr(scan, field), getattr(loop, field).numpy()) < 1e-9, field
 
 
+@pytest.mark.slow
 def test_pair_scan_route_equals_sample_loop():
     gyro, acc = imu_samples(257, max_rate=3.0, seed=11, batch=(2,))
     rng = np.random.default_rng(12)
@@ -119,6 +121,7 @@ def test_float32_tracks_float64():
         assert rel_err(getattr(f32, field).double(), getattr(ref, field).numpy()) < 1e-4, field
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("large_routes", [False, True])
 @pytest.mark.parametrize("at", [None, -1, 4])
 def test_gradcheck_deltas_and_covariance(at, large_routes, monkeypatch):
@@ -144,6 +147,7 @@ def test_gradcheck_deltas_and_covariance(at, large_routes, monkeypatch):
     assert torch.autograd.gradcheck(fn, inputs, eps=1e-6, atol=1e-7, rtol=1e-5)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("at", [None, -1])
 def test_gradcheck_with_constant_noise(at):
     """Densities that are not differentiated (a fixed noise, as in GTSAM's params) take a shorter backward."""

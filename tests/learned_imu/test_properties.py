@@ -237,6 +237,7 @@ def imu_inputs(draw, batch: tuple[int, ...] = (), min_n: int = 1, max_n: int = 3
     return gyro, acc, dt, gyro_cov, acc_cov
 
 
+@pytest.mark.slow
 @PROPERTY
 @given(args=imu_inputs())
 def test_preintegrate_equals_the_sample_loop(args):

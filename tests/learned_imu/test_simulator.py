@@ -121,6 +121,7 @@ def test_vibration_comes_in_bursts_at_its_frequency():
     assert np.fft.rfftfreq(len(acc_err), 0.005)[spectrum.argmax()] == pytest.approx(37.0, abs=0.1)
 
 
+@pytest.mark.slow
 def test_two_hour_sequence_fits_in_memory():
     seq = simulate("car", duration_s=7200.0, grade="consumer", seed=1)
     assert len(seq) == 1_440_000 and np.isfinite(seq.acc).all()

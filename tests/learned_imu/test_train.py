@@ -63,6 +63,7 @@ def stretch(sim, first: int, last: int) -> ImuSequence:
     )  # fmt: skip
 
 
+@pytest.mark.slow
 def test_training_learns_the_bias_and_generalises_to_unseen_motion():
     torch.manual_seed(0)
     sim = simulate_with_truth("drone", duration_s=80.0, error_model=BIASED, seed=1)
@@ -99,6 +100,7 @@ class _ConstantNoise(torch.nn.Module):
         return Correction(gyro, acc, zero, zero, gyro_cov, acc_cov)
 
 
+@pytest.mark.slow
 def test_noise_scales_fitted_on_held_out_windows_recover_a_misstated_noise():
     """White noise only, the stand-in's densities 4x too small (gyro) and 9x too large (acc): the fitted scales
     undo both to within the sampling error of 150 windows, and then the NSE of every block is about 1."""

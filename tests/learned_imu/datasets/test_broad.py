@@ -20,6 +20,7 @@ def _trials(shared_data: Path) -> list[Path]:
     return sorted((shared_data / "broad").glob("*.mat"))
 
 
+@pytest.mark.slow
 def test_all_trials_pass_the_frame_self_check_and_mask_exactly_the_nan_rows(shared_data):
     trials = _trials(shared_data)
     assert len(trials) == 17

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import base64
+import importlib.util
 import json
 import os
 import shutil
@@ -30,6 +31,15 @@ import urllib.request
 from pathlib import Path
 
 HOST = "127.0.0.1"
+# pointer move, press and release in one JavaScript task, so that the viewer sees them in one frame: a software-
+# rendered frame takes longer than egui's longest click, and DevTools' input events arrive a frame apart
+CLICK_JS = """(() => {
+  const canvas = document.querySelector("canvas");
+  const at = {clientX: %f, clientY: %f, pointerId: 1, pointerType: "mouse", isPrimary: true, bubbles: true};
+  canvas.dispatchEvent(new PointerEvent("pointermove", at));
+  canvas.dispatchEvent(new PointerEvent("pointerdown", {...at, button: 0, buttons: 1}));
+  canvas.dispatchEvent(new PointerEvent("pointerup", {...at, button: 0, buttons: 0}));
+})()"""
 CHROMIUM_FLAGS = (
     "--headless", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader", "--disable-quic", "--no-first-run",
     "--disable-background-networking", "--disable-component-update", "--disable-sync", "--hide-scrollbars",
@@ -57,7 +67,7 @@ def main() -> int:
     profile = tempfile.mkdtemp(prefix="airimu-chromium-")
     try:
         server = subprocess.Popen(
-            [sys.executable, "-m", "rerun", "--serve-web", "--bind", HOST, "--web-viewer-port", str(web),
+            [_rerun_binary(), "--serve-web", "--bind", HOST, "--web-viewer-port", str(web),
              "--port", str(grpc), "--hide-welcome-screen", str(args.recording)],
             stdout=subprocess.DEVNULL, stderr=(args.out / "rerun.log").open("w"),
         )  # fmt: skip
@@ -77,10 +87,7 @@ def main() -> int:
         shots = [_shot(page, args.out / "viewer.png")]
         for i, xy in enumerate(args.click):
             x, y = (float(v) for v in xy.split(","))
-            page.call("Input.dispatchMouseEvent", type="mouseMoved", x=x, y=y)  # egui wants the hover first
-            time.sleep(0.5)
-            for kind in ("mousePressed", "mouseReleased"):
-                page.call("Input.dispatchMouseEvent", type=kind, x=x, y=y, button="left", clickCount=1)
+            page.call("Runtime.evaluate", expression=CLICK_JS % (x, y))
             time.sleep(4.0)
             shots.append(_shot(page, args.out / f"click{i + 1}.png"))
         page.close()
@@ -93,6 +100,17 @@ def main() -> int:
             if proc is not None:
                 _stop(proc, name, grace)  # Chromium quits by itself after Browser.close
         shutil.rmtree(profile, ignore_errors=True)
+
+
+def _rerun_binary() -> str:
+    """The viewer binary rerun-sdk installs (``python -m rerun`` would run it as a child that outlives a stopped
+    parent), or ``$RERUN_CLI_PATH`` as rerun_cli honours it."""
+    if "RERUN_CLI_PATH" in os.environ:
+        return os.environ["RERUN_CLI_PATH"]
+    spec = importlib.util.find_spec("rerun_cli")
+    if spec is None or spec.origin is None:
+        raise FileNotFoundError("rerun_cli is not installed: pip install rerun-sdk")
+    return str(Path(spec.origin).with_name("rerun"))
 
 
 def _shot(page: _DevTools, path: Path) -> Path:

@@ -182,6 +182,7 @@ train: {window: 200, every: 50, batch_size: 4, epochs: 2, lr: 3e-3, calibration_
 """
 
 
+@pytest.mark.slow  # trains two epochs
 def test_training_is_drawn_in_rerun_and_logged_one_line_per_epoch(tmp_path, capsys):
     import json
 

@@ -151,7 +151,7 @@ def make_inputs(after: Path, folder: Path) -> str:
 
     with np.load(folder / "seq.npz", allow_pickle=False) as data:
         clean = {k: data[k].copy() for k in data.files}
-    for i, (label, (key, change)) in enumerate(EXPORT_CORRUPTIONS.items()):
+    for i, (_label, (key, change)) in enumerate(EXPORT_CORRUPTIONS.items()):
         arrays = {k: v.copy() for k, v in clean.items()}
         exec(change, {}, {"a": arrays[key]})  # noqa: S102 - fixed strings above
         np.savez(folder / f"bad_export_{i}.npz", **arrays)
@@ -304,8 +304,9 @@ def build_cases(d: Path) -> list[Case]:
     # 6. Graphs
     fuse_gps = ["fuse", "--dataset", "csv", "--path", imu_only, "--out", "f", *csv_opts, "--gps"]
     cases.append(Case("6 Graphs", "fuse: 2 GPS fixes", cli=[*fuse_gps, str(d / "gps_two.csv")]))
-    cases.append(Case("6 Graphs", "fuse: 3 fixes within 1 m, sigma 1 m", cli=[*fuse_gps, str(d / "gps_three_close.csv")]))
-    body = f"""
+    three_close = [*fuse_gps, str(d / "gps_three_close.csv")]
+    cases.append(Case("6 Graphs", "fuse: 3 fixes within 1 m, sigma 1 m", cli=three_close))
+    body = """
         import torch
         from learned_imu.simulator import simulate
         from learned_imu.model import Correction
@@ -457,7 +458,7 @@ def main() -> None:
         cells = []
         for label in trees:
             counts = [sum(results[label, i].outcome == o for i in idx) for o in OUTCOMES]
-            for o, n in zip(OUTCOMES, counts):
+            for o, n in zip(OUTCOMES, counts, strict=True):
                 totals[label][o] += n
             cells.append(" / ".join(f"{n:2}" for n in counts))
         print(f"{cls:16} {len(idx):5} | {cells[0]:>27} | {cells[1]:>26}")

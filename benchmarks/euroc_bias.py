@@ -58,7 +58,7 @@ def main() -> None:
         )
     if args.checkpoint:
         from learned_imu.checkpoint import model_from_checkpoint
-        from learned_imu.experiment import correct
+        from learned_imu.inference import correct
 
         model, config = model_from_checkpoint(args.checkpoint)
         gravity = bool(config.get("train", {}).get("remove_gravity", False))

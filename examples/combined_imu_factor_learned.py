@@ -38,7 +38,7 @@ def run(seconds: float = 30.0, checkpoint: str | None = None, seed: int = 5) -> 
     noise, samples = NOISE_COV, (None, None)
     if checkpoint:
         from learned_imu.checkpoint import model_from_checkpoint
-        from learned_imu.experiment import correct
+        from learned_imu.inference import correct
 
         out = correct(model_from_checkpoint(checkpoint)[0], seq)
         noise, samples = (out.gyro_cov.numpy(), out.acc_cov.numpy()), (out.gyro.numpy(), out.acc.numpy())

@@ -33,7 +33,7 @@ def run(seconds: float = 12.0, checkpoint: str | None = None, relinearise: int =
     gyro, acc, gyro_cov, acc_cov = seq.gyro, seq.acc, *NOISE_COV
     if checkpoint:  # the learned model's corrected samples and per-sample noise
         from learned_imu.checkpoint import model_from_checkpoint
-        from learned_imu.experiment import correct
+        from learned_imu.inference import correct
 
         out = correct(model_from_checkpoint(checkpoint)[0], seq)
         gyro, acc, gyro_cov, acc_cov = (x.numpy() for x in (out.gyro, out.acc, out.gyro_cov, out.acc_cov))

@@ -25,8 +25,8 @@ import numpy as np
 
 from factors import GpsFactor, from_export, gps_noise
 from fusion.pgo import gps_for
-from learned_imu.experiment import correct
 from learned_imu.export import export_preintegration, keyframes_every
+from learned_imu.inference import correct
 from learned_imu.simulator import simulate
 
 X, V, B = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V, gtsam.symbol_shorthand.B

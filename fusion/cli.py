@@ -281,11 +281,9 @@ def evaluate(
     gyro = acc = None
     label = "raw IMU"
     if checkpoint:
-        from learned_imu.checkpoint import model_from_checkpoint
-        from learned_imu.experiment import correct
+        from learned_imu.inference import correct_from_checkpoint
 
-        model, config = model_from_checkpoint(checkpoint)
-        out = correct(model, sequence, bool(config.get("train", {}).get("remove_gravity", False)))
+        out = correct_from_checkpoint(checkpoint, sequence)
         gyro, acc, label = out.gyro.numpy(), out.acc.numpy(), f"corrected by {checkpoint}"
     result = run_evaluation(sequence, interval, interval_unit, gyro, acc)
     table = Table(title=f"{result.sequence}: {label}, interval {result.interval_s:.3f} s ({result.n_windows} windows)")
@@ -455,11 +453,9 @@ def export(
     sequence = _read_with_options(dataset, path, reader_option or [], imu_file)
     index = keyframes_from_spec(sequence, keyframes)
     if checkpoint:
-        from learned_imu.checkpoint import model_from_checkpoint
-        from learned_imu.experiment import correct
+        from learned_imu.inference import correct_from_checkpoint
 
-        model, config = model_from_checkpoint(checkpoint)
-        c = correct(model, sequence, bool(config.get("train", {}).get("remove_gravity", False)))
+        c = correct_from_checkpoint(checkpoint, sequence)
         arrays = (c.gyro_cov.numpy(), c.acc_cov.numpy(), c.gyro.numpy(), c.acc.numpy())
     else:
         if gyro_noise_density is None or acc_noise_density is None:
@@ -483,31 +479,16 @@ def scale_noise_command(
     likelihood, so that its covariance is calibrated on data it has not seen (learned_imu.train.noise_residuals)."""
     from rich.console import Console
 
-    from learned_imu.checkpoint import load_checkpoint, model_from_checkpoint, save_checkpoint
-    from learned_imu.config import ExperimentConfig, from_dict
-    from learned_imu.experiment import build_windows
-    from learned_imu.train import noise_residuals, scale_noise
+    from learned_imu.inference import scale_checkpoint_noise
 
     _check_outputs(files={"--out": out})
-    payload = load_checkpoint(checkpoint)
-    model, config = model_from_checkpoint(checkpoint)
-    cfg = from_dict(ExperimentConfig, config, source=f"{checkpoint} (stored config)")
     sequence = _read_with_options(dataset, path, reader_option or [], imu_file)
-    if sequence.gt is None:
-        raise typer.BadParameter(f"{path}: the sequence has no ground truth; scaling the noise needs it")
-    residuals = noise_residuals(model, build_windows([sequence], cfg, None))
-    scales = residuals.best_scales()
-    before, after = residuals.nse(), residuals.nse(*scales)
-    scale_noise(model, *scales)
-    previous = payload["best"].get("noise_scales", [1.0, 1.0])
-    best = {**payload["best"], "noise_scales": [previous[0] * scales[0], previous[1] * scales[1]]}
-    written = save_checkpoint(
-        out, config, {**payload["trainer"], "model": model.state_dict()}, best, payload.get("trained_on")
-    )
+    done = scale_checkpoint_noise(checkpoint, sequence, out)
+    (gyro, acc), before, after = done.scales, done.nse_before, done.nse_after
     Console().print(
-        f"noise scaled by {scales[0]:.3g} (gyro) and {scales[1]:.3g} (acc) on {sequence.name}; NSE rot/pos/vel "
+        f"noise scaled by {gyro:.3g} (gyro) and {acc:.3g} (acc) on {sequence.name}; NSE rot/pos/vel "
         f"{before[0]:.2f}/{before[1]:.2f}/{before[2]:.2f} -> {after[0]:.2f}/{after[1]:.2f}/{after[2]:.2f}; "
-        f"written to {written}"
+        f"written to {done.path}"
     )
 
 

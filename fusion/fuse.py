@@ -65,7 +65,7 @@ def fuse(
         bias: estimate a bias state per keyframe (``fusion.graph.BiasStates``).
         noise_density: (gyro, acc) sigmas without a model.
     """
-    from learned_imu.experiment import correct
+    from learned_imu.inference import correct
 
     settings = settings or FusionSettings(gps_robust="huber")
     fixes = gps if gps is not None else sequence.gps

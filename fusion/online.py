@@ -36,7 +36,7 @@ from factors.gps import ROBUST_LOSSES
 from fusion.graph import Trajectory
 from fusion.initial import priors_on_first
 from learned_imu.errors import AirImuError, InputError
-from learned_imu.experiment import check_times_rate
+from learned_imu.inference import check_times_rate
 from learned_imu.model import DEFAULT_ACC_COV, DEFAULT_GYRO_COV, AirImuNet
 
 log = logging.getLogger(__name__)

@@ -20,7 +20,8 @@ from fusion.graph import with_marginals
 from fusion.pgo import PgoRow, run_sequence
 from learned_imu.checkpoint import model_from_checkpoint
 from learned_imu.config import load_config
-from learned_imu.experiment import correct, load_sequences, train_run, with_epochs
+from learned_imu.experiment import load_sequences, train_run, with_epochs
+from learned_imu.inference import correct
 from learned_imu.model import Correction
 from learned_imu.preintegration import NavState, predict, preintegrate
 from learned_imu.sequence import ImuSequence

@@ -33,7 +33,8 @@ from learned_imu.baselines import average_bias, linear_calibration
 from learned_imu.checkpoint import model_from_checkpoint
 from learned_imu.config import ExperimentConfig
 from learned_imu.evaluate import evaluate
-from learned_imu.experiment import correct, load_sequences, train_run
+from learned_imu.experiment import load_sequences, train_run
+from learned_imu.inference import correct
 from learned_imu.io import write_csv_atomic, write_json_atomic
 from learned_imu.model import AirImuNet
 from learned_imu.sequence import ImuSequence

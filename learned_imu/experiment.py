@@ -38,9 +38,10 @@ from learned_imu.datasets import SIMULATOR
 from learned_imu.distributed import World, agree, barrier, check_batch_size, is_writer
 from learned_imu.errors import ConfigError, InputError
 from learned_imu.evaluate import Evaluation, evaluate
+from learned_imu.inference import MAX_RATE_MISMATCH, check_rate, check_times_rate, correct  # noqa: F401 (re-exported: earlier import path)
 from learned_imu.io import atomic_file, folder_lock, remove_temporaries
 from learned_imu.losses import LossWeights
-from learned_imu.model import AirImuNet, Correction, correct_sequence, device_of
+from learned_imu.model import AirImuNet
 from learned_imu.sequence import ImuSequence
 from learned_imu.train import Trainer, calibrate_uncertainty, fit_noise_scales, scale_noise
 from learned_imu.windows import Windows, concat_windows, make_windows
@@ -114,51 +115,6 @@ def loss_weights(config: ExperimentConfig) -> LossWeights:
     return LossWeights(**asdict(config.loss))
 
 
-def correct(model: AirImuNet, sequence: ImuSequence, remove_gravity: bool = False) -> Correction:
-    """The model's output for a whole sequence, (N, 3) fields in float64 on the CPU (streamed unless gravity removal
-    needs the ground truth in one pass; computed on the model's device). A model read from a checkpoint that
-    records its training rate (``model.trained_on``) refuses a sequence sampled more than ``MAX_RATE_MISMATCH`` off
-    it: its convolutions see time in samples."""
-    check_rate(model, sequence)
-    model.eval()
-    device = device_of(model)
-    gyro = torch.as_tensor(sequence.gyro, dtype=torch.float32, device=device)
-    acc = torch.as_tensor(sequence.acc, dtype=torch.float32, device=device)
-    if remove_gravity:
-        if sequence.gt is None:
-            raise InputError(f"{sequence.name}: the model removes gravity with ground truth; the sequence has none")
-        g_imu = np.einsum("nji,j->ni", sequence.gt.rot, sequence.gravity)
-        g_imu = torch.as_tensor(g_imu, dtype=torch.float32, device=device)
-        with torch.no_grad():
-            out = model(gyro[None], acc[None], gravity_imu=g_imu[None])
-        out = Correction(*(getattr(out, f)[0] for f in out.__dataclass_fields__))
-    else:
-        out = correct_sequence(model, gyro, acc)
-    return Correction(*(getattr(out, f).cpu().double() for f in out.__dataclass_fields__))
-
-
-MAX_RATE_MISMATCH = 0.1  # relative difference of sample rates a model is applied across
-
-
-def check_rate(model: AirImuNet, sequence: ImuSequence) -> None:
-    """An ``InputError`` when ``sequence``'s median rate is more than ``MAX_RATE_MISMATCH`` off the rate the model
-    was trained at (``model.trained_on``, from its checkpoint; nothing to check without it)."""
-    check_times_rate(model, sequence.t, sequence.source or sequence.name)
-
-
-def check_times_rate(model: AirImuNet, t: np.ndarray, where: str) -> None:
-    """``check_rate`` for sample times ``t`` (s), the error naming ``where`` (a file, or a stream's method)."""
-    trained = getattr(model, "trained_on", None)
-    if not trained or len(t) < 2:
-        return
-    rate = 1.0 / float(np.median(np.diff(t)))
-    if abs(rate / trained["rate_hz"] - 1.0) > MAX_RATE_MISMATCH:
-        raise InputError(
-            f"{where}: IMU sampled at {rate:.1f} Hz, but the model was trained at {trained['rate_hz']:.1f} Hz "
-            f"({', '.join(trained['datasets'])}): resample the IMU to that rate or train a model on data at this rate"
-        )
-
-
 def evaluate_model(model: AirImuNet, sequence: ImuSequence, config: ExperimentConfig) -> Evaluation:
     """The paper's metrics of the corrected IMU on ``sequence`` at the configured interval."""
     out = correct(model, sequence, config.train.remove_gravity)
@@ -191,7 +147,7 @@ def _train_run(config: ExperimentConfig, folder: Path, progress: bool, world: Wo
     writer = is_writer(world)
     if writer:
         folder.mkdir(parents=True, exist_ok=True)
-        for stale in remove_temporaries(folder, RUN_FILES):  # a killed run's unfinished write
+        for stale in remove_temporaries(folder, ["*"]):  # a killed run's unfinished writes (the folder is locked)
             log.warning("removed %s, left by an interrupted write", stale)
     cfg_dict = to_dict(config)
     train_seqs = load_sequences(config.data.train, config.data.root)

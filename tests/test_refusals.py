@@ -388,7 +388,7 @@ def test_a_killed_writers_temporary_is_removed_by_the_next_write(tmp_path):
 def test_a_remove_gravity_model_on_data_without_ground_truth(flight):
     import dataclasses
 
-    from learned_imu.experiment import correct
+    from learned_imu.inference import correct
 
     model = build_model(ModelConfig(conv_channels=(8, 16), gru_sizes=(16,), decoder_hidden=16)).eval()
     blind = dataclasses.replace(flight, gt=None)

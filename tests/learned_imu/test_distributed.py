@@ -65,7 +65,8 @@ def test_two_processes_give_the_one_process_loss_curve_and_write_one_run_folder(
     proc = torchrun_train(config, multi, EPOCHS)  # resumes: every rank loads last.pt
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert proc.stdout.count("run folder:") == 1  # one summary: rank 0's
-    assert sorted(p.name for p in multi.iterdir()) == sorted([*RUN_FILES, ".lock"])  # one set of files, no temporaries
+    written = [*RUN_FILES, ".lock", "training.rrd"]  # training.rrd: the CLI's recording, rank 0's
+    assert sorted(p.name for p in multi.iterdir()) == sorted(written)  # one set of files, no temporaries
 
     one, two = metrics(single), metrics(multi)
     assert two[0] == one[0] | {"seconds": two[0]["seconds"]}  # the one-process epoch, kept as logged

@@ -62,7 +62,7 @@ def test_run_folder_holds_config_metrics_and_checkpoints(tmp_path):
     # the checkpoint records the rate it was trained at; data sampled more than 10 % off it is refused
     assert model.trained_on == {"rate_hz": pytest.approx(200.0), "datasets": ["simulator"]}
     from learned_imu.errors import InputError
-    from learned_imu.experiment import correct
+    from learned_imu.inference import correct
     from learned_imu.simulator import simulate
 
     assert correct(model, simulate("drone", duration_s=2.0, rate_hz=210.0, seed=9)).gyro.shape[1] == 3

@@ -37,7 +37,8 @@ data:
 model: {{conv_channels: [8, 16], gru_sizes: [16], decoder_hidden: 16}}
 train: {{window: 200, every: 50, batch_size: 4, epochs: {EPOCHS}, lr: 3e-3, calibration_steps: 10}}
 """
-RUN_FILES = [".lock", "best.pt", "config.yaml", "last.pt", "metrics.jsonl"]  # .lock: the writer lock (free now)
+RUN_FILES = [".lock", "best.pt", "config.yaml", "last.pt", "metrics.jsonl", "training.rrd"]  # .lock: the writer lock
+# (free now); training.rrd: the CLI's Rerun recording of the metrics
 TIMEOUT_S = 600  # generous: the machine is shared; a run takes ~20 s alone
 WHITE = ImuErrorModel(1e-4, 1e-3, 0.0, 0.0, 0.0, 0.0)
 

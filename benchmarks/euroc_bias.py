@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from learned_imu.baselines import average_bias
 from learned_imu.datasets import read_sequence
-from learned_imu.evaluate import evaluate
+from learned_imu.evaluation.baselines import average_bias
+from learned_imu.evaluation.evaluate import evaluate
 
 TRAIN = ("MH_01_easy", "MH_03_medium", "MH_05_difficult", "V1_02_medium", "V2_01_easy", "V2_03_difficult")
 TEST = ("MH_04_difficult", "V1_03_difficult", "V2_02_medium")
@@ -57,8 +57,8 @@ def main() -> None:
             f"{roe(seq, seq.gyro - everything):.4f}"
         )
     if args.checkpoint:
-        from learned_imu.checkpoint import model_from_checkpoint
-        from learned_imu.inference import correct
+        from learned_imu.network.checkpoint import model_from_checkpoint
+        from learned_imu.network.inference import correct
 
         model, config = model_from_checkpoint(args.checkpoint)
         gravity = bool(config.get("train", {}).get("remove_gravity", False))

@@ -2,9 +2,10 @@
 
     python benchmarks/evaluation.py [--data ../shared/data]
 
-Prints the paper's metrics of the raw IMU (``learned_imu.metrics``: ROE, its RMSE, P-RMSE) and the ATE on the three
+Prints the paper's metrics of the raw IMU (``learned_imu.evaluation.metrics``: ROE, its RMSE, P-RMSE) and the ATE on
+the three
 EuRoC test flights of the shared data at intervals of 1 s and 10 frames (IMU samples), beside the paper's Baseline
-values (``learned_imu.paper``) and their ratio, then times ``read_sequence`` + ``evaluate`` on MH_01_easy
+values (``learned_imu.evaluation.paper``) and their ratio, then times ``read_sequence`` + ``evaluate`` on MH_01_easy
 (184 s at 200 Hz) against evo computing APE and RPE on a trajectory of the same length.
 """
 
@@ -21,9 +22,9 @@ from evo.core import metrics as evo_metrics
 from evo.core.trajectory import PoseTrajectory3D
 from scipy.spatial.transform import Rotation
 
-from learned_imu import paper
 from learned_imu.datasets import read_sequence
-from learned_imu.evaluate import evaluate
+from learned_imu.evaluation import paper
+from learned_imu.evaluation.evaluate import evaluate
 
 SEQUENCES = ("MH_04_difficult", "V1_03_difficult", "V2_02_medium")
 INTERVALS = ((1.0, "s"), (10, "frames"))

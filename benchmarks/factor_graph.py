@@ -28,7 +28,7 @@ from gtsam.symbol_shorthand import B, V, X
 
 from factors import LearnedImuFactor, learned_pim
 from factors.pim_from_deltas import pim_from_deltas
-from learned_imu.simulator import ImuErrorModel, simulate
+from learned_imu.datasets.simulator import ImuErrorModel, simulate
 
 KEYFRAME_S = 0.5
 GPS_SIGMA_M = 0.5

@@ -33,10 +33,10 @@ def main() -> None:
     from factors import load_export
     from fusion.graph import FusionSettings, build_graph, solve
     from fusion.pgo import ate_m, gps_for
-    from learned_imu.checkpoint import model_from_checkpoint
+    from learned_imu.datasets.simulator import simulate
     from learned_imu.export import export_preintegration, keyframes_every
-    from learned_imu.model import AirImuNet, correct_sequence
-    from learned_imu.simulator import simulate
+    from learned_imu.network.checkpoint import model_from_checkpoint
+    from learned_imu.network.model import AirImuNet, correct_sequence
 
     clock = time.perf_counter()
     seq = simulate("drone", duration_s=args.hours * 3600, grade="consumer", seed=0, device_seed=7)

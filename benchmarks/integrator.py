@@ -27,7 +27,7 @@ import pypose as pp
 import torch
 
 from learned_imu import preintegrate
-from learned_imu.preintegration_reference import preintegrate_loop, preintegrate_pair_scan
+from learned_imu.geometry.preintegration_reference import preintegrate_loop, preintegrate_pair_scan
 
 DT = 0.005  # s, 200 Hz
 GYRO_DENSITY = 1.6968e-4**2  # rad^2/s (EuRoC ADIS16448 datasheet density, squared)

@@ -16,7 +16,7 @@ import gtsam
 import numpy as np
 
 from learned_imu.config import load_config
-from learned_imu.experiment import load_sequences
+from learned_imu.training.experiment import load_sequences
 
 
 def gap_errors(sequences, min_gap_s: float = 0.05):

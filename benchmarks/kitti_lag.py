@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from learned_imu.config import load_config
-from learned_imu.evaluate import evaluate
-from learned_imu.experiment import load_sequences
+from learned_imu.evaluation.evaluate import evaluate
+from learned_imu.training.experiment import load_sequences
 
 CONFIG = Path(__file__).resolve().parents[1] / "configs" / "kitti.yaml"
 

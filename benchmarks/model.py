@@ -6,7 +6,8 @@ with pypose's ``IMUPreintegrator`` (the integrator the official AirIMU code trai
 Inference: ``correct_sequence`` over a random sequence in chunks of 4096 (batch 1, no ground truth).
 Training step (both sides, one run): the network on a batch of windows, preintegration of the corrected samples with
 the learned noise, the state loss on every 50th sample and the covariance NLL, backward, Adam step.
-- ours: ``learned_imu.train.window_loss`` exactly as training runs it (deltas and covariance at every supervised
+- ours: ``learned_imu.training.train.window_loss`` exactly as training runs it (deltas and covariance at every
+supervised
   sample, float32);
 - pypose: the same network, errors and losses, with ``pp.module.IMUPreintegrator(gravity=0, prop_cov=True,
   reset=True)`` integrating the window (deltas after every sample; its covariance after the last sample only,
@@ -25,12 +26,12 @@ import time
 import pypose as pp
 import torch
 
-from learned_imu.losses import LossWeights, covariance_nll, delta_errors, state_loss
-from learned_imu.model import AirImuNet, correct_sequence
-from learned_imu.preintegration import Preintegrated
-from learned_imu.simulator import simulate
-from learned_imu.train import window_loss
-from learned_imu.windows import Windows, make_windows
+from learned_imu.datasets.simulator import simulate
+from learned_imu.geometry.preintegration import Preintegrated
+from learned_imu.network.model import AirImuNet, correct_sequence
+from learned_imu.training.losses import LossWeights, covariance_nll, delta_errors, state_loss
+from learned_imu.training.train import window_loss
+from learned_imu.training.windows import Windows, make_windows
 
 PYPOSE_TO_GTSAM = [0, 1, 2, 6, 7, 8, 3, 4, 5]  # pypose's covariance is [rot, vel, pos]; GTSAM's [rot, pos, vel]
 

@@ -62,9 +62,9 @@ def main() -> None:
 
     from fusion.graph import Solution
     from fusion.pgo import ate_m, gps_for
-    from learned_imu.checkpoint import model_from_checkpoint
-    from learned_imu.model import AirImuNet
-    from learned_imu.simulator import simulate
+    from learned_imu.datasets.simulator import simulate
+    from learned_imu.network.checkpoint import model_from_checkpoint
+    from learned_imu.network.model import AirImuNet
 
     if args.threads:
         torch.set_num_threads(args.threads)

@@ -16,7 +16,7 @@ from scipy.interpolate import CubicSpline
 from fusion.config import load_pgo_config
 from fusion.pgo import fixes_on_samples, gps_for, recorded_phases
 from learned_imu.config import load_config
-from learned_imu.experiment import load_sequences
+from learned_imu.training.experiment import load_sequences
 
 
 def rmse(pos: np.ndarray, truth: np.ndarray) -> float:

@@ -19,7 +19,7 @@ from fusion.config import load_pgo_config
 from fusion.graph import build_graph, solve
 from fusion.pgo import ate_m, gps_for
 from learned_imu.config import load_config
-from learned_imu.experiment import load_sequences
+from learned_imu.training.experiment import load_sequences
 
 
 def main() -> None:

@@ -22,8 +22,8 @@ from gtsam.symbol_shorthand import B, V, X
 
 from factors import GpsFactor, from_export, gps_noise
 from fusion.pgo import gps_for
+from learned_imu.datasets.simulator import ImuErrorModel, simulate
 from learned_imu.export import export_preintegration, keyframes_every
-from learned_imu.simulator import ImuErrorModel, simulate
 
 # white noise, bias random walk (rad/s^2/sqrt(Hz), m/s^3/sqrt(Hz)) and turn-on biases
 ERRORS = ImuErrorModel(1e-4, 1e-3, 1e-4, 1e-3, 0.05, 0.1)
@@ -37,8 +37,8 @@ def run(seconds: float = 30.0, checkpoint: str | None = None, seed: int = 5) -> 
     seq = simulate("car", duration_s=seconds, error_model=ERRORS, seed=seed)
     noise, samples = NOISE_COV, (None, None)
     if checkpoint:
-        from learned_imu.checkpoint import model_from_checkpoint
-        from learned_imu.inference import correct
+        from learned_imu.network.checkpoint import model_from_checkpoint
+        from learned_imu.network.inference import correct
 
         out = correct(model_from_checkpoint(checkpoint)[0], seq)
         noise, samples = (out.gyro_cov.numpy(), out.acc_cov.numpy()), (out.gyro.numpy(), out.acc.numpy())

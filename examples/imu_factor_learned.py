@@ -19,7 +19,7 @@ import numpy as np
 from gtsam.symbol_shorthand import B, V, X
 
 from factors import learned_pim
-from learned_imu.simulator import ImuErrorModel, simulate
+from learned_imu.datasets.simulator import ImuErrorModel, simulate
 
 BIAS_KEY = B(0)
 # GTSAM's example: acc bias (-0.3, 0.1, 0.2) m/s^2, gyro bias (0.1, 0.3, -0.1) rad/s; here drawn at that scale
@@ -32,8 +32,8 @@ def run(seconds: float = 12.0, checkpoint: str | None = None, relinearise: int =
     seq = simulate("car", duration_s=seconds + 0.5, error_model=ERRORS, seed=seed)
     gyro, acc, gyro_cov, acc_cov = seq.gyro, seq.acc, *NOISE_COV
     if checkpoint:  # the learned model's corrected samples and per-sample noise
-        from learned_imu.checkpoint import model_from_checkpoint
-        from learned_imu.inference import correct
+        from learned_imu.network.checkpoint import model_from_checkpoint
+        from learned_imu.network.inference import correct
 
         out = correct(model_from_checkpoint(checkpoint)[0], seq)
         gyro, acc, gyro_cov, acc_cov = (x.numpy() for x in (out.gyro, out.acc, out.gyro_cov, out.acc_cov))

@@ -17,7 +17,8 @@ import numpy as np
 
 ROTATION_TOL = 1e-5  # max |R^T R - I| entry of a delta rotation
 SYMMETRY_TOL = 1e-9  # max |C - C^T| relative to max |C| of a covariance
-# The world frame is z-up (learned_imu.sequence): gravity points along -z with Earth's magnitude; 9.78-9.83 m/s^2
+# The world frame is z-up (learned_imu.datasets.sequence): gravity points along -z with Earth's magnitude; 9.78-9.83
+# m/s^2
 # anywhere on the surface, the range leaves room for rounded values (9.8, 10).
 GRAVITY_RANGE_M_S2 = (9.5, 10.5)
 GRAVITY_MAX_TILT_RAD = 0.02  # angle between gravity and world -z

@@ -123,7 +123,7 @@ def fuse(
     from pathlib import Path
 
     from fusion.fuse import BiasStates, fuse, read_gps_csv, write_outputs
-    from learned_imu.sequence import GpsFixes
+    from learned_imu.datasets.sequence import GpsFixes
 
     if gps_every < 1:
         raise typer.BadParameter(f"--gps-every must be >= 1, got {gps_every}")
@@ -146,7 +146,7 @@ def fuse(
     used = GpsFixes(fixes.t[::gps_every], fixes.pos[::gps_every], fixes.sigma[::gps_every])
     model = None
     if checkpoint:
-        from learned_imu.checkpoint import model_from_checkpoint
+        from learned_imu.network.checkpoint import model_from_checkpoint
 
         model = model_from_checkpoint(checkpoint)[0]
     states = BiasStates(1.67e-4, 2.91e-6, 0.1, 0.01, factor="combined") if bias else None  # CombinedImuFactor
@@ -210,7 +210,8 @@ def view(recording: str = typer.Argument(..., help="an .rrd written by demo/abla
     raise typer.Exit(subprocess.call([sys.executable, "-m", "rerun", recording]))
 
 
-# (column, field): window-end statistics first (the paper's columns; learned_imu.metrics), then every-state RMSEs
+# (column, field): window-end statistics first (the paper's columns; learned_imu.evaluation.metrics), then
+# every-state RMSEs
 METRIC_COLUMNS = (
     ("ROE (deg)", "roe_deg"),
     ("ROE RMSE (deg)", "roe_rmse_deg"),
@@ -239,7 +240,7 @@ def _load_config(config: str, data_root: str | None):
 def _overrides(config, epochs: int | None, device: str | None):
     """``--epochs`` and ``--device`` applied to a loaded experiment config (checked like the YAML keys)."""
     from learned_imu.config import DEVICES
-    from learned_imu.experiment import with_device, with_epochs
+    from learned_imu.training.experiment import with_device, with_epochs
 
     if epochs is not None:
         if epochs < 1:
@@ -269,7 +270,7 @@ def evaluate(
     from rich.table import Table
 
     from learned_imu.config import INTERVAL_UNITS
-    from learned_imu.evaluate import evaluate as run_evaluation
+    from learned_imu.evaluation.evaluate import evaluate as run_evaluation
     from learned_imu.io import write_json_atomic
 
     if not (math.isfinite(interval) and interval > 0):
@@ -281,7 +282,7 @@ def evaluate(
     gyro = acc = None
     label = "raw IMU"
     if checkpoint:
-        from learned_imu.inference import correct_from_checkpoint
+        from learned_imu.network.inference import correct_from_checkpoint
 
         out = correct_from_checkpoint(checkpoint, sequence)
         gyro, acc, label = out.gyro.numpy(), out.acc.numpy(), f"corrected by {checkpoint}"
@@ -317,8 +318,8 @@ def train(
     from rich.console import Console
 
     from fusion.recording import write_training_recording
-    from learned_imu.distributed import process_group
-    from learned_imu.experiment import train_run
+    from learned_imu.training.distributed import process_group
+    from learned_imu.training.experiment import train_run
 
     cfg = _overrides(_load_config(config, data_root), epochs, device)
     _check_outputs(folders={"--out": out})
@@ -345,11 +346,11 @@ def ablate_imu(
     progress: bool = typer.Option(True, help="show progress bars"),
 ) -> None:
     """The paper's IMU ablation: Baseline, Average Bias, linear calibration, AirIMU w/o and with covariance loss;
-    prints the rows and the paper's tables with its published values beside ours (learned_imu.ablation)."""
+    prints the rows and the paper's tables with its published values beside ours (learned_imu.evaluation.ablation)."""
     from rich.table import Table
 
     from fusion.recording import write_training_recording
-    from learned_imu.ablation import ablate, paper_tables, write_rows
+    from learned_imu.evaluation.ablation import ablate, paper_tables, write_rows
 
     cfg = _overrides(_load_config(config, data_root), epochs, device)
     _check_outputs(files={"--json": json_out, "--csv": csv_out}, folders={"--out": out})
@@ -453,7 +454,7 @@ def export(
     sequence = _read_with_options(dataset, path, reader_option or [], imu_file)
     index = keyframes_from_spec(sequence, keyframes)
     if checkpoint:
-        from learned_imu.inference import correct_from_checkpoint
+        from learned_imu.network.inference import correct_from_checkpoint
 
         c = correct_from_checkpoint(checkpoint, sequence)
         arrays = (c.gyro_cov.numpy(), c.acc_cov.numpy(), c.gyro.numpy(), c.acc.numpy())
@@ -476,10 +477,11 @@ def scale_noise_command(
     reader_option: list[str] = typer.Option(None, help=READER_OPTION_HELP),  # noqa: B008 (typer reads repeats as a list)
 ) -> None:
     """Scale a trained model's noise densities (one factor per sensor) to a held-out sequence's windows by maximum
-    likelihood, so that its covariance is calibrated on data it has not seen (learned_imu.train.noise_residuals)."""
+    likelihood, so that its covariance is calibrated on data it has not seen
+    (learned_imu.training.train.noise_residuals)."""
     from rich.console import Console
 
-    from learned_imu.inference import scale_checkpoint_noise
+    from learned_imu.network.inference import scale_checkpoint_noise
 
     _check_outputs(files={"--out": out})
     sequence = _read_with_options(dataset, path, reader_option or [], imu_file)
@@ -499,10 +501,10 @@ def export_model(
     out: str = typer.Option(..., help="output file, e.g. airimu.onnx or airimu.pt"),
 ) -> None:
     """Write the model's streaming step as a file that runs without this package (TorchScript or ONNX, explicit
-    GRU/convolution state in and out; conventions in learned_imu.deploy)."""
+    GRU/convolution state in and out; conventions in learned_imu.network.deploy)."""
     from rich.console import Console
 
-    from learned_imu.deploy import export_checkpoint
+    from learned_imu.network.deploy import export_checkpoint
 
     _check_outputs(files={"--out": out})
     written = export_checkpoint(checkpoint, out, format)

@@ -26,10 +26,10 @@ import numpy as np
 from factors import load_export
 from fusion.graph import BiasStates, FusionSettings, Gps, Solution, build_graph, solve
 from fusion.pgo import fixes_on_samples
+from learned_imu.datasets.sequence import GpsFixes, ImuSequence
 from learned_imu.errors import DataError
 from learned_imu.export import export_preintegration, keyframes_every, nearest_samples
-from learned_imu.model import Correction
-from learned_imu.sequence import GpsFixes, ImuSequence
+from learned_imu.network.model import Correction
 
 DEFAULT_GPS_SIGMA_M = 1.0  # per axis, when the file gives none
 # without a model: VINS-Mono's EuRoC setting (sigmas, rad/s/sqrt(Hz) and m/s^2/sqrt(Hz)), a consumer MEMS
@@ -59,13 +59,13 @@ def fuse(
     """Fuse ``sequence``'s IMU with ``gps`` (default: the sequence's own fixes); see the module docstring.
 
     Args:
-        model: an ``AirImuNet`` (e.g. ``learned_imu.checkpoint.model_from_checkpoint(...)[0]``), or None.
+        model: an ``AirImuNet`` (e.g. ``learned_imu.network.checkpoint.model_from_checkpoint(...)[0]``), or None.
         settings: graph and solver options; default: robust (Huber) GPS factors.
         keyframe_s: a keyframe every this many seconds; None: one at every fix.
         bias: estimate a bias state per keyframe (``fusion.graph.BiasStates``).
         noise_density: (gyro, acc) sigmas without a model.
     """
-    from learned_imu.inference import correct
+    from learned_imu.network.inference import correct
 
     settings = settings or FusionSettings(gps_robust="huber")
     fixes = gps if gps is not None else sequence.gps

@@ -36,8 +36,8 @@ from factors.gps import ROBUST_LOSSES
 from fusion.graph import Trajectory
 from fusion.initial import priors_on_first
 from learned_imu.errors import AirImuError, InputError
-from learned_imu.inference import check_times_rate
-from learned_imu.model import DEFAULT_ACC_COV, DEFAULT_GYRO_COV, AirImuNet
+from learned_imu.network.inference import check_times_rate
+from learned_imu.network.model import DEFAULT_ACC_COV, DEFAULT_GYRO_COV, AirImuNet
 
 log = logging.getLogger(__name__)
 X, V, B = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V, gtsam.symbol_shorthand.B

@@ -31,10 +31,10 @@ import numpy as np
 from factors import load_export
 from fusion.graph import BiasStates, FusionSettings, Gps, Solution, build_graph, solve
 from learned_imu.config import check_noise_density
+from learned_imu.datasets.sequence import GpsFixes, ImuSequence, gap_indices
 from learned_imu.errors import ConfigError, InputError
 from learned_imu.export import export_preintegration, keyframes_every, nearest_samples
-from learned_imu.model import Correction
-from learned_imu.sequence import GpsFixes, ImuSequence, gap_indices
+from learned_imu.network.model import Correction
 
 log = logging.getLogger(__name__)
 SCORE_SPANS = ("keyframes", "gps")

@@ -18,13 +18,13 @@ import torch
 from fusion.config import PgoConfig
 from fusion.graph import with_marginals
 from fusion.pgo import PgoRow, run_sequence
-from learned_imu.checkpoint import model_from_checkpoint
 from learned_imu.config import load_config
-from learned_imu.experiment import load_sequences, train_run, with_epochs
-from learned_imu.inference import correct
-from learned_imu.model import Correction
-from learned_imu.preintegration import NavState, predict, preintegrate
-from learned_imu.sequence import ImuSequence
+from learned_imu.datasets.sequence import ImuSequence
+from learned_imu.geometry.preintegration import NavState, predict, preintegrate
+from learned_imu.network.checkpoint import model_from_checkpoint
+from learned_imu.network.inference import correct
+from learned_imu.network.model import Correction
+from learned_imu.training.experiment import load_sequences, train_run, with_epochs
 
 log = logging.getLogger(__name__)
 
@@ -110,14 +110,15 @@ _MARGINALS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # record() 
 
 def paper_ate(row: PgoRow) -> float | None:
     """The paper's ATE (m) for a row's sequence, GPS rate and setting, or None where it has none."""
-    from learned_imu.paper import EUROC_PGO
+    from learned_imu.evaluation.paper import EUROC_PGO
 
     return EUROC_PGO.get(row.sequence, {}).get(row.gps_hz, {}).get(row.setting)
 
 
 def write_table(rows: list[PgoRow], json_path: str | Path | None = None, csv_path: str | Path | None = None) -> None:
     """The ablation rows as JSON (keys setting, gps_hz, sequence, ate_mean_m, ate_std_m, paper_ate_m) and/or CSV,
-    atomically; ``paper_ate_m`` is the AirIMU paper's published ATE for that cell (``learned_imu.paper``), or null."""
+    atomically; ``paper_ate_m`` is the AirIMU paper's published ATE for that cell (``learned_imu.evaluation.paper``),
+    or null."""
     from dataclasses import asdict
 
     from learned_imu.io import write_csv_atomic, write_json_atomic

@@ -302,7 +302,8 @@ TRAINING_SERIES = (
 def write_training_recording(folder: str | Path, history: list[dict]) -> Path:
     """``folder/training.rrd``: every epoch's losses and validation metrics (``metrics.jsonl`` entries), on the
     time line ``epoch`` (1 = the first). Written whole and atomically, so it is a valid recording whenever a viewer
-    opens it, resumed runs included; ``learned_imu.experiment.train_run(on_epoch=...)`` calls it after each epoch."""
+    opens it, resumed runs included; ``learned_imu.training.experiment.train_run(on_epoch=...)`` calls it after each
+    epoch."""
     path = Path(folder) / "training.rrd"
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     epochs = np.array([entry["epoch"] + 1 for entry in history], dtype=np.int64)

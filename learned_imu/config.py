@@ -4,7 +4,7 @@
 missing or ill-typed key is a ``ConfigError`` naming the file and the key's dotted path (``train.lr``).
 Sequence paths are relative to ``data.root``, which is itself relative to the config file's folder unless
 absolute; ``--data-root`` on the command line overrides it. The config stops at the factories
-(``model_from_config`` etc. in ``learned_imu.experiment``): classes take plain arguments.
+(``model_from_config`` etc. in ``learned_imu.training.experiment``): classes take plain arguments.
 
 Units are in the field names or comments: seconds, samples, m/s^2, rad/s; noise densities are continuous-time
 (rad^2/s, m^2/s^3) as in ``AirImuNet`` and GTSAM.
@@ -25,7 +25,7 @@ import yaml
 from learned_imu.errors import ConfigError
 
 DEVICES = ("cpu", "cuda", "auto")
-INTERVAL_UNITS = ("s", "frames")  # learned_imu.evaluate's
+INTERVAL_UNITS = ("s", "frames")  # learned_imu.evaluation.evaluate's
 
 
 def _check(record, key: str, ok, expected: str) -> None:
@@ -52,7 +52,7 @@ class SequenceConfig:
     """One sequence: a reader name (``learned_imu.datasets.READERS``) or ``"simulator"``.
 
     For a reader, ``path`` is relative to ``data.root`` and ``options`` are the reader's keyword arguments
-    (e.g. ``imu_file`` for EuRoC). For ``"simulator"``, ``options`` are ``learned_imu.simulator.simulate``'s
+    (e.g. ``imu_file`` for EuRoC). For ``"simulator"``, ``options`` are ``learned_imu.datasets.simulator.simulate``'s
     (``profile``, ``duration_s``, ``grade``, ``seed``, ...) and ``path`` is unused. ``span`` keeps the samples
     from one fraction of the sequence to another (``[0.0, 0.85]`` trains on the first 85 %, ``[0.85, 1.0]``
     validates on the rest: ``ImuSequence.part``).
@@ -172,7 +172,8 @@ class TrainConfig:
 
 @dataclass(frozen=True)
 class EvaluationConfig:
-    """Interval of the paper's metrics (``learned_imu.evaluate``) and keyframe spacing of exports, s; ``frames``:
+    """Interval of the paper's metrics (``learned_imu.evaluation.evaluate``) and keyframe spacing of exports, s;
+    ``frames``:
     the short interval of the paper's 10-frame table, in IMU samples (0 = not scored)."""
 
     interval: float = 1.0

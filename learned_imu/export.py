@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from learned_imu.datasets.sequence import ImuSequence
 from learned_imu.errors import DataError, InputError
+from learned_imu.geometry.preintegration import preintegrate
 from learned_imu.io import atomic_file
-from learned_imu.preintegration import preintegrate
-from learned_imu.sequence import ImuSequence
 
 FORMAT_VERSION = 1
 SAMPLES_PER_CALL = 100_000  # samples preintegrated per batched call (about 0.5 GB of float64 intermediates)

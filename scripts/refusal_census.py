@@ -70,10 +70,10 @@ import sys
 from pathlib import Path
 import numpy as np
 import torch
-from learned_imu.simulator import simulate
+from learned_imu.datasets.simulator import simulate
 from learned_imu.datasets._rotations import matrix_to_quat_wxyz
 from learned_imu.export import export_preintegration, keyframes_every
-from learned_imu.checkpoint import build_model, save_checkpoint
+from learned_imu.network.checkpoint import build_model, save_checkpoint
 from learned_imu.config import ModelConfig
 
 folder = Path(sys.argv[1])
@@ -308,8 +308,8 @@ def build_cases(d: Path) -> list[Case]:
     cases.append(Case("6 Graphs", "fuse: 3 fixes within 1 m, sigma 1 m", cli=three_close))
     body = """
         import torch
-        from learned_imu.simulator import simulate
-        from learned_imu.model import Correction
+        from learned_imu.datasets.simulator import simulate
+        from learned_imu.network.model import Correction
         from fusion.pgo import PgoOptions, run_sequence
         seq = simulate("drone", duration_s=30.0, rate_hz=100.0, gps_rate_hz=1.0, gps_sigma_m=0.1, seed=1)
         gyro, acc = torch.as_tensor(seq.gyro), torch.as_tensor(seq.acc)

@@ -19,14 +19,14 @@ from hypothesis import strategies as st
 from factors import GraphError
 from factors.export_file import ExportError, from_export, load_export
 from fusion.cli import main
-from learned_imu.checkpoint import build_model, model_from_checkpoint, save_checkpoint
 from learned_imu.config import ModelConfig, load_config
 from learned_imu.datasets import read_sequence
 from learned_imu.datasets._rotations import matrix_to_quat_wxyz
+from learned_imu.datasets.simulator import simulate
 from learned_imu.errors import ConfigError, DataError, InputError
 from learned_imu.export import export_preintegration, keyframes_every
 from learned_imu.io import atomic_file, output_folder, write_json_atomic
-from learned_imu.simulator import simulate
+from learned_imu.network.checkpoint import build_model, model_from_checkpoint, save_checkpoint
 
 CSV_KEYS = dict(header=True, time="t", gyro=["gx", "gy", "gz"], acc=["ax", "ay", "az"])
 GT_KEYS = dict(gt_pos=["px", "py", "pz"], gt_quat=["qw", "qx", "qy", "qz"], gt_vel=["vx", "vy", "vz"])
@@ -315,7 +315,7 @@ def test_positions_in_mm_without_a_velocity_column(flight, tmp_path):
 
 def test_too_few_or_too_close_fixes_without_a_first_state(flight):
     from fusion.fuse import fuse
-    from learned_imu.sequence import GpsFixes
+    from learned_imu.datasets.sequence import GpsFixes
 
     blind = flight.part(0.0, 1.0)
     gps = flight.gps
@@ -327,7 +327,7 @@ def test_too_few_or_too_close_fixes_without_a_first_state(flight):
 
 def test_a_pgo_rate_that_leaves_one_fix_names_the_option(flight, tmp_path):
     from fusion.pgo import PgoOptions, run_sequence
-    from learned_imu.model import Correction
+    from learned_imu.network.model import Correction
 
     gyro, acc = torch.as_tensor(flight.gyro), torch.as_tensor(flight.acc)
     zero = torch.zeros_like(gyro)
@@ -388,7 +388,7 @@ def test_a_killed_writers_temporary_is_removed_by_the_next_write(tmp_path):
 def test_a_remove_gravity_model_on_data_without_ground_truth(flight):
     import dataclasses
 
-    from learned_imu.inference import correct
+    from learned_imu.network.inference import correct
 
     model = build_model(ModelConfig(conv_channels=(8, 16), gru_sizes=(16,), decoder_hidden=16)).eval()
     blind = dataclasses.replace(flight, gt=None)

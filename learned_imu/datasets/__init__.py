@@ -1,4 +1,5 @@
-"""Dataset readers: one module per format, each returning a checked ``ImuSequence`` (see ``learned_imu.sequence``).
+"""Dataset readers: one module per format, each returning a checked ``ImuSequence`` (see
+``learned_imu.datasets.sequence``).
 
 ``read_sequence("euroc", path, **options)`` dispatches by name through ``READERS``; each reader's module
 docstring states its frames, quaternion order and units. Shared parsing and checks live in the ``_`` modules:
@@ -20,7 +21,7 @@ from learned_imu.datasets.euroc import read_euroc
 from learned_imu.datasets.kitti import read_kitti
 from learned_imu.datasets.kitti_raw import read_kitti_raw
 from learned_imu.datasets.rosbag import read_rosbag
-from learned_imu.sequence import ImuSequence
+from learned_imu.datasets.sequence import ImuSequence
 
 READERS: dict[str, Callable[..., ImuSequence | list[ImuSequence]]] = {
     "euroc": read_euroc,
@@ -32,7 +33,7 @@ READERS: dict[str, Callable[..., ImuSequence | list[ImuSequence]]] = {
 }
 
 
-SIMULATOR = "simulator"  # a config's sequence made by learned_imu.simulator.simulate instead of a reader
+SIMULATOR = "simulator"  # a config's sequence made by learned_imu.datasets.simulator.simulate instead of a reader
 # Reader and simulator options are a handful of scalars and short lists: anything far larger is a mistake or an
 # attack (YAML aliases nest to ~10^9 elements in a few hundred bytes), refused before it is expanded.
 MAX_OPTION_ITEMS = 1000
@@ -75,7 +76,7 @@ def check_options(dataset: str, options: dict, where: str = "options") -> dict:
     from learned_imu.errors import ConfigError
 
     if dataset == SIMULATOR:
-        from learned_imu.simulator import simulate as function
+        from learned_imu.datasets.simulator import simulate as function
     elif dataset in READERS:
         function = READERS[dataset]
     else:
@@ -111,7 +112,7 @@ POSITIVE_OPTIONS = {
 def _choices() -> dict[str, tuple]:
     """Options with a fixed set of values, by name (the same name means the same choice in every reader)."""
     from learned_imu.datasets import _checks, _rotations, csv, kitti_raw, rosbag
-    from learned_imu.simulator import GRADES, PROFILES
+    from learned_imu.datasets.simulator import GRADES, PROFILES
 
     return {
         "on_gap": _checks.ON_GAP, "on_duplicate": _checks.ON_DUPLICATE, "on_backward": kitti_raw.ON_BACKWARD,

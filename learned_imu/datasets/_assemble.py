@@ -27,8 +27,8 @@ import numpy as np
 
 from learned_imu.datasets import _checks
 from learned_imu.datasets._rotations import UNIT_NORM_TOL, quat_to_matrix, slerp
+from learned_imu.datasets.sequence import GpsFixes, GroundTruth, ImuSequence
 from learned_imu.errors import DataError
-from learned_imu.sequence import GpsFixes, GroundTruth, ImuSequence
 
 VEL_WINDOW_S = 0.05  # s; 11 samples at 200 Hz, chosen on EuRoC V1_02 (3.2 mm/s rms vs the file velocity)
 VEL_POLYORDER = 3

@@ -25,8 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from learned_imu.datasets._rotations import matrix_to_quat_wxyz, quat_to_matrix, relative_rotvec
+from learned_imu.datasets.sequence import MAX_GAP_STEPS, gap_indices  # noqa: F401 (re-exported: readers and tests use them)
 from learned_imu.errors import DataError
-from learned_imu.sequence import MAX_GAP_STEPS, gap_indices  # noqa: F401 (re-exported: readers and tests use them)
 
 logger = logging.getLogger(__name__)
 

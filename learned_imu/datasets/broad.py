@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from learned_imu.datasets._assemble import VEL_WINDOW_S, GtSamples, build_sequence
+from learned_imu.datasets.sequence import ImuSequence
 from learned_imu.errors import DataError
-from learned_imu.sequence import ImuSequence
 
 GRAVITY = 9.81
 FIELDS = {"imu_gyr": 3, "imu_acc": 3, "opt_quat": 4, "opt_pos": 3}

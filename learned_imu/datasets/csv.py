@@ -25,8 +25,8 @@ from learned_imu.datasets._assemble import VEL_WINDOW_S, GtSamples, build_sequen
 from learned_imu.datasets._checks import DEG, STANDARD_GRAVITY, check_timestamps
 from learned_imu.datasets._rotations import QUAT_ORDERS
 from learned_imu.datasets._table import ColumnKey, read_table
+from learned_imu.datasets.sequence import ImuSequence
 from learned_imu.errors import DataError
-from learned_imu.sequence import ImuSequence
 
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}  # seconds per unit
 GYRO_UNITS = {"rad/s": 1.0, "deg/s": DEG}  # rad/s per unit

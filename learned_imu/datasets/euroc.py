@@ -28,8 +28,8 @@ import numpy as np
 from learned_imu.datasets._assemble import VEL_WINDOW_S, GtSamples, build_sequence, resolve
 from learned_imu.datasets._checks import check_timestamps
 from learned_imu.datasets._table import read_table
+from learned_imu.datasets.sequence import ImuSequence
 from learned_imu.errors import DataError
-from learned_imu.sequence import ImuSequence
 
 GRAVITY = 9.81007  # m/s^2, the value AirIMU uses for EuRoC
 NS = 1e-9

@@ -26,8 +26,8 @@ import numpy as np
 from learned_imu.datasets._assemble import build_sequence
 from learned_imu.datasets._checks import check_timestamps
 from learned_imu.datasets._table import read_table
+from learned_imu.datasets.sequence import GpsFixes, ImuSequence
 from learned_imu.errors import DataError
-from learned_imu.sequence import GpsFixes, ImuSequence
 
 GRAVITY = 9.8  # m/s^2, as gtsam's IMUKittiExampleGPS.py
 GPS_SIGMA = float(np.sqrt(0.07))  # m per axis, from the example's GPS precision 1/0.07

@@ -46,8 +46,8 @@ from learned_imu.datasets._assemble import GtSamples, build_sequence, resolve
 from learned_imu.datasets._checks import check_timestamps
 from learned_imu.datasets._table import read_table
 from learned_imu.datasets.kitti import GPS_SIGMA, read_gps
+from learned_imu.datasets.sequence import GpsFixes, ImuSequence
 from learned_imu.errors import DataError, DependencyError
-from learned_imu.sequence import GpsFixes, ImuSequence
 
 GRAVITY = 9.80655  # m/s^2, standard gravity (the README's specific-force check used it)
 ON_BACKWARD = ("error", "drop")

@@ -28,8 +28,8 @@ import numpy as np
 
 from learned_imu.datasets._assemble import VEL_WINDOW_S, GtSamples, build_sequence
 from learned_imu.datasets._checks import check_timestamps
+from learned_imu.datasets.sequence import GpsFixes, ImuSequence
 from learned_imu.errors import DataError
-from learned_imu.sequence import GpsFixes, ImuSequence
 
 logger = logging.getLogger(__name__)
 

@@ -9,8 +9,8 @@ import pytest
 from gtsam.symbol_shorthand import B, V, X
 
 from factors import GpsFactor, from_export, gps_noise, learned_combined_pim, load_export
+from learned_imu.datasets.simulator import ImuErrorModel, simulate
 from learned_imu.export import export_preintegration, keyframes_every
-from learned_imu.simulator import ImuErrorModel, simulate
 
 GYRO_COV, ACC_COV = 1e-4**2, 1e-3**2
 # turn-on biases drawn with 0.2 rad/s and 0.1 m/s^2 one-sigma: gyro biases of 0.1-0.3 rad/s, as in ImuFactorExample

@@ -11,8 +11,8 @@ from gtsam.symbol_shorthand import V, X
 from factors import GpsFactor, gps_noise
 from factors.export_file import ExportError, from_export, load_export
 from learned_imu import preintegrate
+from learned_imu.datasets.simulator import ImuErrorModel, simulate
 from learned_imu.export import export_preintegration, keyframes_every
-from learned_imu.simulator import ImuErrorModel, simulate
 
 WHITE = ImuErrorModel(1.6968e-4, 2.0e-3, 0.0, 0.0, 0.0, 0.0)  # industrial white noise, no bias
 

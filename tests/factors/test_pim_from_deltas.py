@@ -12,8 +12,8 @@ from factors import LearnedImuFactor
 from factors.export_file import from_export, load_export
 from factors.pim_from_deltas import PimLayoutError, _check_read_back, pim_from_deltas
 from learned_imu import preintegrate
+from learned_imu.datasets.simulator import simulate
 from learned_imu.export import export_preintegration, keyframes_every
-from learned_imu.simulator import simulate
 
 
 def measurement(seed: int):

@@ -87,10 +87,10 @@ def test_train_then_evaluate_and_export_with_the_checkpoint(shared_data, tmp_pat
 
     from factors.export_file import load_export
     from fusion.cli import app
-    from learned_imu.checkpoint import load_checkpoint, model_from_checkpoint
     from learned_imu.datasets import read_sequence
-    from learned_imu.evaluate import evaluate
-    from learned_imu.inference import correct
+    from learned_imu.evaluation.evaluate import evaluate
+    from learned_imu.network.checkpoint import load_checkpoint, model_from_checkpoint
+    from learned_imu.network.inference import correct
 
     config = tmp_path / "tiny.yaml"
     config.write_text(TINY_YAML)

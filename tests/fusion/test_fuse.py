@@ -113,7 +113,7 @@ def write_bag_with_navsatfix(path, seq, fixes_every: int, sigma: float):
 
 def test_fuse_a_ros2_bag_with_navsatfix(tmp_path):
     from learned_imu.datasets import read_sequence
-    from learned_imu.simulator import simulate
+    from learned_imu.datasets.simulator import simulate
 
     seq = simulate("car", duration_s=30.0, grade="industrial", seed=2)
     bag, origin = write_bag_with_navsatfix(tmp_path / "drive", seq, fixes_every=200, sigma=0.5)  # 1 Hz at 200 Hz

@@ -12,8 +12,8 @@ import pytest
 from factors import load_export
 from fusion.graph import FusionSettings, Gps, build_graph, solve
 from fusion.pgo import ate_m, gps_for
+from learned_imu.datasets.simulator import ImuErrorModel, simulate
 from learned_imu.export import export_preintegration, keyframes_every
-from learned_imu.simulator import ImuErrorModel, simulate
 
 GYRO_DENSITY, ACC_DENSITY = 1e-4, 1e-3  # rad/s/sqrt(Hz), m/s^2/sqrt(Hz): the simulated white noise
 WHITE = ImuErrorModel(GYRO_DENSITY, ACC_DENSITY, 0.0, 0.0, 0.0, 0.0)

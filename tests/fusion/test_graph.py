@@ -10,8 +10,8 @@ import pytest
 from factors import load_export
 from fusion.graph import FusionSettings, Gps, build_graph, solve, with_marginals
 from fusion.pgo import ate_m, gps_for
+from learned_imu.datasets.simulator import ImuErrorModel, simulate
 from learned_imu.export import export_preintegration, keyframes_every
-from learned_imu.simulator import ImuErrorModel, simulate
 
 WHITE = ImuErrorModel(1e-4, 1e-3, 0.0, 0.0, 0.0, 0.0)  # white noise only: the exported covariance is exact
 

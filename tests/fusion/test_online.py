@@ -15,10 +15,10 @@ from factors import load_export
 from fusion.graph import Gps, Solution, build_graph, solve
 from fusion.online import OnlineFusion
 from fusion.pgo import ate_m, gps_for
+from learned_imu.datasets.simulator import simulate
 from learned_imu.errors import InputError
 from learned_imu.export import export_preintegration, keyframes_every
-from learned_imu.model import AirImuNet, correct_sequence
-from learned_imu.simulator import simulate
+from learned_imu.network.model import AirImuNet, correct_sequence
 from tests.helpers import REPO
 
 X, V = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V

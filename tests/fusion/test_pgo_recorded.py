@@ -11,10 +11,10 @@ import torch
 
 from factors import load_export
 from fusion.pgo import GTSAM_EXAMPLE, SETTINGS, PgoOptions, fixes_on_samples, run_sequence, write_exports
+from learned_imu.datasets.sequence import GroundTruth, ImuSequence
+from learned_imu.datasets.simulator import simulate
 from learned_imu.errors import ConfigError
-from learned_imu.model import Correction
-from learned_imu.sequence import GroundTruth, ImuSequence
-from learned_imu.simulator import simulate
+from learned_imu.network.model import Correction
 
 
 def with_gap(seq: ImuSequence, first: int, last: int) -> ImuSequence:

@@ -188,7 +188,7 @@ def test_training_is_drawn_in_rerun_and_logged_one_line_per_epoch(tmp_path, caps
 
     from fusion.recording import write_training_recording
     from learned_imu.config import load_config
-    from learned_imu.experiment import train_run
+    from learned_imu.training.experiment import train_run
 
     (tmp_path / "tiny.yaml").write_text(TINY)
     calls = []

@@ -95,7 +95,7 @@ def test_euroc_config_is_the_papers_split_and_validation_never_touches_a_test_fl
 def test_data_root_override_moves_every_sequence_list(tmp_path, shared_data):
     """A user's own copy of the official download: ``--data-root`` is where train, val and evaluate are read."""
     from learned_imu.errors import DataError
-    from learned_imu.experiment import load_sequences
+    from learned_imu.training.experiment import load_sequences
 
     root = tmp_path / "official"
     (root / "euroc").mkdir(parents=True)
@@ -117,9 +117,9 @@ def test_renamed_keys_name_the_new_key_and_old_checkpoints_still_load(tmp_path):
     import torch
 
     from fusion.config import load_pgo_config
-    from learned_imu.checkpoint import model_from_checkpoint, save_checkpoint
     from learned_imu.config import ModelConfig
-    from learned_imu.model import AirImuNet
+    from learned_imu.network.checkpoint import model_from_checkpoint, save_checkpoint
+    from learned_imu.network.model import AirImuNet
 
     pgo = tmp_path / "pgo.yaml"
     pgo.write_text("name: p\nexperiment: e.yaml\nrun: r\noptions: {fixed_gyro_density: 0.004}\n")

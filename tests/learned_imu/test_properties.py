@@ -19,7 +19,7 @@ from learned_imu.datasets._checks import check_timestamps, segments
 from learned_imu.datasets.csv import read_csv
 from learned_imu.datasets.euroc import read_euroc
 from learned_imu.errors import DataError
-from learned_imu.preintegration_reference import preintegrate_loop
+from learned_imu.geometry.preintegration_reference import preintegrate_loop
 
 PROPERTY = settings(
     max_examples=40,

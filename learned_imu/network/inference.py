@@ -1,0 +1,114 @@
+"""Inference: a trained model applied to a sequence, from a model or straight from a checkpoint file.
+
+- ``correct(model, sequence)``: the model's corrections and noise densities for a whole sequence (streamed);
+- ``correct_from_checkpoint(path, sequence)``: the same from a ``best.pt``, honouring its stored
+  ``train.remove_gravity``;
+- ``scale_checkpoint_noise(path, sequence, out)``: one noise scale per sensor fitted by maximum likelihood on a
+  held-out sequence's windows (``train.noise_residuals``), written to a new checkpoint (``airimu scale-noise``);
+- ``check_rate`` / ``check_times_rate``: a model whose checkpoint records its training rate refuses data sampled
+  more than ``MAX_RATE_MISMATCH`` off it (its convolutions see time in samples).
+
+Units: gyro rad/s, acc m/s^2, IMU frame; noise densities rad^2/s and m^2/s^3 (``*_cov``: sigma^2).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from learned_imu.datasets.sequence import ImuSequence
+from learned_imu.errors import InputError
+from learned_imu.network.model import AirImuNet, Correction, correct_sequence, device_of
+
+MAX_RATE_MISMATCH = 0.1  # relative difference of sample rates a model is applied across
+
+
+def correct(model: AirImuNet, sequence: ImuSequence, remove_gravity: bool = False) -> Correction:
+    """The model's output for a whole sequence, (N, 3) fields in float64 on the CPU (streamed unless gravity removal
+    needs the ground truth in one pass; computed on the model's device). A model read from a checkpoint that
+    records its training rate (``model.trained_on``) refuses a sequence sampled more than ``MAX_RATE_MISMATCH`` off
+    it."""
+    check_rate(model, sequence)
+    model.eval()
+    device = device_of(model)
+    gyro = torch.as_tensor(sequence.gyro, dtype=torch.float32, device=device)
+    acc = torch.as_tensor(sequence.acc, dtype=torch.float32, device=device)
+    if remove_gravity:
+        if sequence.gt is None:
+            raise InputError(f"{sequence.name}: the model removes gravity with ground truth; the sequence has none")
+        g_imu = np.einsum("nji,j->ni", sequence.gt.rot, sequence.gravity)
+        g_imu = torch.as_tensor(g_imu, dtype=torch.float32, device=device)
+        with torch.no_grad():
+            out = model(gyro[None], acc[None], gravity_imu=g_imu[None])
+        out = Correction(*(getattr(out, f)[0] for f in out.__dataclass_fields__))
+    else:
+        out = correct_sequence(model, gyro, acc)
+    return Correction(*(getattr(out, f).cpu().double() for f in out.__dataclass_fields__))
+
+
+def correct_from_checkpoint(checkpoint: str | Path, sequence: ImuSequence) -> Correction:
+    """``correct`` with the model of ``checkpoint`` and its stored ``train.remove_gravity``."""
+    from learned_imu.network.checkpoint import model_from_checkpoint
+
+    model, config = model_from_checkpoint(checkpoint)
+    return correct(model, sequence, bool(config.get("train", {}).get("remove_gravity", False)))
+
+
+@dataclass(frozen=True)
+class NoiseScaling:
+    """What ``scale_checkpoint_noise`` did: the (gyro, acc) scales applied, the held-out NSE (rotation, position,
+    velocity; 1 = calibrated) before and after, and the checkpoint written."""
+
+    scales: tuple[float, float]
+    nse_before: np.ndarray
+    nse_after: np.ndarray
+    path: Path
+
+
+def scale_checkpoint_noise(checkpoint: str | Path, sequence: ImuSequence, out: str | Path) -> NoiseScaling:
+    """Scale ``checkpoint``'s noise densities (one factor per sensor) to ``sequence``'s windows by maximum likelihood
+    and write the result to ``out`` (may be ``checkpoint`` itself; the scales accumulate in ``best.noise_scales``).
+    ``sequence`` must have ground truth and be held out (neither trained nor evaluated on)."""
+    from learned_imu.config import ExperimentConfig, from_dict
+    from learned_imu.network.checkpoint import load_checkpoint, model_from_checkpoint, save_checkpoint
+    from learned_imu.training.experiment import build_windows
+    from learned_imu.training.train import noise_residuals, scale_noise
+
+    if sequence.gt is None:
+        where = sequence.source or sequence.name
+        raise InputError(f"{where}: the sequence has no ground truth; scaling the noise needs it")
+    payload = load_checkpoint(checkpoint)
+    model, config = model_from_checkpoint(checkpoint)
+    cfg = from_dict(ExperimentConfig, config, source=f"{checkpoint} (stored config)")
+    residuals = noise_residuals(model, build_windows([sequence], cfg, None))
+    scales = residuals.best_scales()
+    before, after = residuals.nse(), residuals.nse(*scales)
+    scale_noise(model, *scales)
+    previous = payload["best"].get("noise_scales", [1.0, 1.0])
+    best = {**payload["best"], "noise_scales": [previous[0] * scales[0], previous[1] * scales[1]]}
+    written = save_checkpoint(
+        out, config, {**payload["trainer"], "model": model.state_dict()}, best, payload.get("trained_on")
+    )
+    return NoiseScaling((float(scales[0]), float(scales[1])), before, after, Path(written))
+
+
+def check_rate(model: AirImuNet, sequence: ImuSequence) -> None:
+    """An ``InputError`` when ``sequence``'s median rate is more than ``MAX_RATE_MISMATCH`` off the rate the model
+    was trained at (``model.trained_on``, from its checkpoint; nothing to check without it)."""
+    check_times_rate(model, sequence.t, sequence.source or sequence.name)
+
+
+def check_times_rate(model: AirImuNet, t: np.ndarray, where: str) -> None:
+    """``check_rate`` for sample times ``t`` (s), the error naming ``where`` (a file, or a stream's method)."""
+    trained = getattr(model, "trained_on", None)
+    if not trained or len(t) < 2:
+        return
+    rate = 1.0 / float(np.median(np.diff(t)))
+    if abs(rate / trained["rate_hz"] - 1.0) > MAX_RATE_MISMATCH:
+        raise InputError(
+            f"{where}: IMU sampled at {rate:.1f} Hz, but the model was trained at {trained['rate_hz']:.1f} Hz "
+            f"({', '.join(trained['datasets'])}): resample the IMU to that rate or train a model on data at this rate"
+        )

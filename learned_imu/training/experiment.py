@@ -1,0 +1,342 @@
+"""Training runs: config -> sequences -> windows -> model -> epochs, in a run folder that explains itself.
+
+A run folder holds:
+
+- ``config.yaml``: the resolved config (every key, defaults filled in, absolute data root);
+- ``metrics.jsonl``: one JSON line per epoch: ``epoch``, ``train_loss``, ``val_loss`` (the state loss alone, the
+  selection criterion: ``Trainer.validation_loss``), ``lr``, ``seconds``
+  (wall time since the run began, summed over resumptions) and the validation metrics ``val_roe_deg``,
+  ``val_rpe_rmse_m`` (means over the validation sequences at the configured interval;
+  ``learned_imu.evaluation.metrics``);
+- ``last.pt`` after every epoch and ``best.pt`` at the best validation loss (``learned_imu.network.checkpoint``); when
+  training ends, the noise decoders of ``best.pt`` are calibrated (``train.calibrate_uncertainty``,
+  ``train.calibration_steps``), with ``train.scale_noise_on_val`` its noise is then scaled to the validation
+  windows (``train.fit_noise_scales``, the scales kept as ``noise_scales``), and it is marked ``calibrated``.
+
+Running again on the same folder resumes from ``last.pt`` (same config required, except ``RESUMABLE_CHANGES``)
+and continues the metrics log;
+a finished run returns at once. Every file is replaced atomically, so an interruption loses at most the epoch in
+progress. Under ``torchrun`` (``world``, ``learned_imu.training.distributed``) every rank trains and reads
+``last.pt`` to
+resume (the folder must be on a file system all nodes share), but only rank 0 validates, calibrates and writes.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from learned_imu.config import ExperimentConfig, SequenceConfig, resolve_device, save_config, to_dict
+from learned_imu.datasets import SIMULATOR
+from learned_imu.datasets.sequence import ImuSequence
+from learned_imu.errors import ConfigError, InputError
+from learned_imu.evaluation.evaluate import Evaluation, evaluate
+from learned_imu.io import atomic_file, folder_lock, remove_temporaries
+from learned_imu.network.checkpoint import build_model, load_checkpoint, save_checkpoint
+from learned_imu.network.inference import MAX_RATE_MISMATCH, check_rate, check_times_rate, correct  # noqa: F401 (re-exported: earlier import path)
+from learned_imu.network.model import AirImuNet
+from learned_imu.training.distributed import World, agree, barrier, check_batch_size, is_writer
+from learned_imu.training.losses import LossWeights
+from learned_imu.training.train import Trainer, calibrate_uncertainty, fit_noise_scales, scale_noise
+from learned_imu.training.windows import Windows, concat_windows, make_windows
+
+log = logging.getLogger(__name__)
+# keys that may differ when resuming: the data may move, and the epoch budget may grow
+RESUMABLE_CHANGES = (
+    "data.root",
+    "train.epochs",
+    "train.early_stop_patience",
+    "train.calibration_steps",
+    "train.scale_noise_on_val",
+    "train.device",  # a run started on a GPU may finish on the CPU and vice versa
+    "data.evaluate",  # what is scored after training, not what trains
+    "evaluation.frames",
+)
+RUN_FILES = ("config.yaml", "metrics.jsonl", "best.pt", "last.pt")
+
+
+@dataclass(frozen=True)
+class RunSummary:
+    """Where a run's files are and how it ended."""
+
+    folder: Path
+    epochs: int
+    best_epoch: int
+    best_val_loss: float
+    seconds_to_best: float
+
+
+def load_sequence(spec: SequenceConfig, root: str | Path) -> list[ImuSequence]:
+    """Read one configured sequence (a dataset reader, or the simulator); a list, since a reader asked to split
+    at gaps returns the pieces."""
+    if spec.dataset == SIMULATOR:
+        from learned_imu.datasets.simulator import simulate
+
+        return [simulate(**spec.options).part(*spec.span)]
+    from learned_imu.datasets import read_sequence
+
+    path = Path(spec.path)
+    out = read_sequence(spec.dataset, path if path.is_absolute() else Path(root) / path, **spec.options)
+    return [s.part(*spec.span) for s in (out if isinstance(out, list) else [out])]
+
+
+def load_sequences(specs: tuple[SequenceConfig, ...], root: str | Path) -> list[ImuSequence]:
+    """All configured sequences, in order."""
+    return [seq for spec in specs for seq in load_sequence(spec, root)]
+
+
+def build_windows(sequences: list[ImuSequence], config: ExperimentConfig, stride: int | None) -> Windows:
+    """Windows of every sequence, concatenated; a sequence without a usable window (time gaps in every one, as in
+    some KITTI drives) is skipped with a warning, none at all is an error naming them."""
+    train = config.train
+    parts = []
+    for s in sequences:
+        part = make_windows(
+            s, train.window, train.every, stride, remove_gravity=train.remove_gravity, allow_empty=True,
+            context=train.context,
+        )  # fmt: skip
+        if part is None:
+            log.warning("%s: no usable window of %d samples (gaps, invalid truth); skipped", s.name, train.window)
+        else:
+            parts.append(part)
+    if not parts:
+        names = ", ".join(s.name for s in sequences)
+        raise InputError(f"no window of {train.window} samples without a gap or invalid ground truth in: {names}")
+    return concat_windows(parts)
+
+
+def loss_weights(config: ExperimentConfig) -> LossWeights:
+    return LossWeights(**asdict(config.loss))
+
+
+def evaluate_model(model: AirImuNet, sequence: ImuSequence, config: ExperimentConfig) -> Evaluation:
+    """The paper's metrics of the corrected IMU on ``sequence`` at the configured interval."""
+    out = correct(model, sequence, config.train.remove_gravity)
+    interval = config.evaluation
+    return evaluate(sequence, interval.interval, interval.interval_unit, out.gyro.numpy(), out.acc.numpy())
+
+
+def train_run(
+    config: ExperimentConfig,
+    folder: str | Path,
+    progress: bool = True,
+    world: World | None = None,
+    on_epoch: Callable[[Path, list[dict]], None] | None = None,
+) -> RunSummary:
+    """Train (or resume) the run in ``folder``; see the module docstring. ``loss.covariance = 0`` trains
+    without the covariance loss (and skips the covariance propagation). ``world``: this process's rank in a
+    ``torchrun`` job (``learned_imu.training.distributed.process_group``); every rank calls this and returns the
+    summary.
+    ``on_epoch(folder, history)``: called on the writing rank after each epoch's files are written, with the metrics
+    of every epoch so far (``fusion.recording.write_training_recording`` draws them in Rerun). ``progress``: a bar
+    per epoch on a terminal, one line per epoch elsewhere (a log file, CI)."""
+    folder = Path(folder)
+    check_batch_size(config.train.batch_size, world)  # before anything is written
+    if not is_writer(world):
+        return _train_run(config, folder, progress, world, on_epoch)
+    with folder_lock(folder):  # one writer per run folder: a second airimu train there is refused, naming this one
+        return _train_run(config, folder, progress, world, on_epoch)
+
+
+def _train_run(config: ExperimentConfig, folder: Path, progress: bool, world: World | None, on_epoch) -> RunSummary:
+    writer = is_writer(world)
+    if writer:
+        folder.mkdir(parents=True, exist_ok=True)
+        for stale in remove_temporaries(folder, ["*"]):  # a killed run's unfinished writes (the folder is locked)
+            log.warning("removed %s, left by an interrupted write", stale)
+    cfg_dict = to_dict(config)
+    train_seqs = load_sequences(config.data.train, config.data.root)
+    val_seqs = load_sequences(config.data.val, config.data.root)
+    t = config.train
+    torch.manual_seed(t.seed)
+    model = build_model(config.model)
+    use_cov = config.loss.covariance > 0
+    trainer = Trainer(
+        model, build_windows(train_seqs, config, t.stride or None), build_windows(val_seqs, config, None),
+        batch_size=t.batch_size, lr=t.lr, weight_decay=t.weight_decay, weights=loss_weights(config),
+        use_covariance=use_cov, plateau_factor=t.plateau_factor, plateau_patience=t.plateau_patience,
+        seed=t.seed, world=world, device=resolve_device(t.device),
+    )  # fmt: skip
+    trained_on = {
+        "rate_hz": float(np.median([1.0 / float(np.median(np.diff(s.t))) for s in train_seqs])),
+        "datasets": sorted({spec.dataset for spec in config.data.train}),
+    }
+    history, best = _resume(folder, cfg_dict, trainer)
+    if not agree(trainer.epochs_done, world):
+        raise ConfigError(f"{folder}: the ranks read different last.pt files; put the run folder on a shared disk")
+    if writer:
+        save_config(folder / "config.yaml", config)
+    clock = time.perf_counter() - (history[-1]["seconds"] if history else 0.0)
+    while trainer.epochs_done < t.epochs and not _stalled(history, best, t.early_stop_patience):
+        entry = asdict(trainer.epoch(on_batch=_progress_bar(progress and writer, trainer, history)))
+        if writer:  # the other ranks go on to the next epoch and wait for rank 0 in its first step
+            metrics = [evaluate_model(model, s, config) for s in val_seqs]
+            entry["val_roe_deg"] = float(np.mean([m.roe_deg for m in metrics]))
+            entry["val_rpe_rmse_m"] = float(np.mean([m.rpe_rmse_m for m in metrics]))
+        entry["seconds"] = time.perf_counter() - clock
+        history.append(entry)
+        improved = not best or entry["val_loss"] < best["val_loss"]  # val_loss: rank 0's, on every rank
+        best = dict(entry) if improved else best
+        if writer:
+            _write_epoch(folder, cfg_dict, trainer, history, best, improved, trained_on)
+            if on_epoch is not None:
+                on_epoch(folder, history)
+            if progress:
+                _epoch_line(config.name, entry, t.epochs)
+        log.info("%s epoch %d: %s", config.name, entry["epoch"], json.dumps(entry))
+    if writer and use_cov:
+        _finish_calibration(folder, cfg_dict, trainer, best, t, trained_on)
+    barrier(world)  # every rank returns once the folder is complete
+    return RunSummary(folder, trainer.epochs_done, int(best["epoch"]), best["val_loss"], best["seconds"])
+
+
+def _write_epoch(
+    folder: Path, cfg_dict: dict, trainer: Trainer, history: list[dict], best: dict, improved: bool, trained_on: dict
+):
+    """An epoch's files: ``best.pt`` if it improved, the metrics log, ``last.pt``."""
+    if improved:
+        save_checkpoint(folder / "best.pt", cfg_dict, trainer.state_dict(), best, trained_on)
+    # the log before last.pt: a resume cuts the log back to last.pt's epochs, so a kill between the two
+    # writes repeats this epoch; the other order would lose its line from the log
+    _write_metrics(folder / "metrics.jsonl", history)
+    save_checkpoint(folder / "last.pt", cfg_dict, trainer.state_dict(), best, trained_on)
+
+
+CALIBRATION_KEYS = ("calibrated", "calibration_nll", "noise_scales")  # what _calibrate_best adds to the best record
+
+
+def _finish_calibration(folder: Path, cfg_dict: dict, trainer: Trainer, best: dict, t, trained_on: dict) -> None:
+    """Calibrate the best checkpoint if it is not yet (a finished run asked for the scaling later gets it then; the
+    second stage is never repeated). ``best.pt`` is written before ``last.pt``: after a kill between the two, the
+    record in ``best.pt`` says what was done, and only ``last.pt`` is brought up to date."""
+    stored = load_checkpoint(folder / "best.pt")["best"]
+    if stored.get("epoch") == best.get("epoch"):
+        best = {**best, **{key: stored[key] for key in CALIBRATION_KEYS if key in stored}}
+    stage = t.calibration_steps > 0 and not best.get("calibrated", False)
+    scale = t.scale_noise_on_val and "noise_scales" not in best
+    if stage or scale:
+        _calibrate_best(folder, cfg_dict, trainer, best, t, stage, scale, trained_on)
+        return
+    last = load_checkpoint(folder / "last.pt")
+    if last["best"] != best:
+        save_checkpoint(folder / "last.pt", cfg_dict, last["trainer"], best, trained_on)
+
+
+def _calibrate_best(
+    folder: Path, cfg_dict: dict, trainer: Trainer, best: dict, t, stage: bool, scale: bool, trained_on: dict
+) -> None:
+    """Second stage on the best checkpoint (``train.calibrate_uncertainty``), then the noise scaling on the
+    validation windows (``train.fit_noise_scales``), as asked; marks it ``calibrated``."""
+    state = load_checkpoint(folder / "best.pt")["trainer"]
+    trainer.model.load_state_dict(state["model"])
+    best = {**best, "calibrated": True}
+    if stage:
+        nll = calibrate_uncertainty(trainer.model, trainer.train, t.calibration_steps, t.batch_size, seed=t.seed)
+        best["calibration_nll"] = nll
+    if scale:
+        best["noise_scales"] = list(fit_noise_scales(trainer.model, trainer.val))
+        scale_noise(trainer.model, *best["noise_scales"])
+        log.info("noise scaled by %.3g (gyro) and %.3g (acc) on the validation windows", *best["noise_scales"])
+    state["model"] = trainer.model.state_dict()
+    save_checkpoint(folder / "best.pt", cfg_dict, state, best, trained_on)
+    last = load_checkpoint(folder / "last.pt")
+    save_checkpoint(folder / "last.pt", cfg_dict, last["trainer"], best, trained_on)
+    log.info("calibrated the noise of %s", folder / "best.pt")
+
+
+def _resume(folder: Path, cfg_dict: dict, trainer: Trainer) -> tuple[list[dict], dict]:
+    """Restore ``trainer`` from ``folder/last.pt`` if there is one; the metrics log is cut to its epochs."""
+    last = folder / "last.pt"
+    if not last.exists():
+        return [], {}
+    payload = load_checkpoint(last)
+    differs = _differences(payload["config"], cfg_dict)
+    if differs:
+        raise ConfigError(
+            f"{folder}: the run was started with another config (differs at: {', '.join(differs)}); "
+            "use a new output folder or the original config"
+        )
+    trainer.load_state_dict(payload["trainer"])
+    metrics = folder / "metrics.jsonl"
+    lines = metrics.read_text().splitlines() if metrics.exists() else []
+    history = [json.loads(line) for line in lines][: trainer.epochs_done]
+    log.info("resuming %s after epoch %d", folder, trainer.epochs_done)
+    return history, dict(payload["best"])
+
+
+def _differences(old: dict, new: dict, where: str = "") -> list[str]:
+    keys = sorted(set(old) | set(new))
+    out = []
+    for key in keys:
+        path = f"{where}.{key}" if where else key
+        if path in RESUMABLE_CHANGES:
+            continue
+        a, b = old.get(key), new.get(key)
+        if isinstance(a, dict) and isinstance(b, dict):
+            out += _differences(a, b, path)
+        elif a != b:
+            out.append(path)
+    return out
+
+
+def _stalled(history: list[dict], best: dict, patience: int) -> bool:
+    return patience > 0 and bool(history) and history[-1]["epoch"] - best["epoch"] >= patience
+
+
+def _write_metrics(path: Path, history: list[dict]) -> None:
+    with atomic_file(path) as f:
+        f.writelines(json.dumps(entry) + "\n" for entry in history)
+
+
+def _progress_bar(enabled: bool, trainer: Trainer, history: list[dict]):
+    """A per-epoch tqdm bar over batches showing the running loss and the last validation metrics, on a terminal
+    only: redrawn bars would flood a log file (there, ``_epoch_line`` writes one line per epoch)."""
+    if not enabled or not sys.stderr.isatty():
+        return None
+    from tqdm.auto import tqdm
+
+    batches = -(-len(trainer.train) // trainer.batch_size)
+    bar = tqdm(total=batches, desc=f"epoch {trainer.epochs_done}", leave=False, unit="batch")
+    last = history[-1] if history else {}
+    seen = []
+
+    def on_batch(loss: float) -> None:
+        seen.append(loss)
+        shown = {"loss": f"{np.mean(seen):.4f}"}
+        if last:
+            shown |= {"val": f"{last['val_loss']:.4f}", "val_roe": f"{last['val_roe_deg']:.3f}deg"}
+        bar.set_postfix(shown, refresh=False)
+        bar.update()
+        if len(seen) == batches:
+            bar.close()
+
+    return on_batch
+
+
+def _epoch_line(name: str, entry: dict, epochs: int) -> None:
+    """One line per finished epoch on stderr (above the bar on a terminal): losses, validation metrics, time."""
+    from tqdm.auto import tqdm
+
+    line = f"{name} epoch {entry['epoch'] + 1}/{epochs}: train_loss {entry['train_loss']:.4f}"
+    line += f", val_loss {entry['val_loss']:.4f}"
+    if "val_roe_deg" in entry:
+        line += f", val_roe {entry['val_roe_deg']:.3f} deg, val_rpe_rmse {entry['val_rpe_rmse_m']:.4f} m"
+    tqdm.write(f"{line}, lr {entry['lr']:.2g}, {entry['seconds']:.1f} s", file=sys.stderr)
+
+
+def with_epochs(config: ExperimentConfig, epochs: int) -> ExperimentConfig:
+    """``config`` with another epoch budget (for quick runs)."""
+    return replace(config, train=replace(config.train, epochs=epochs))
+
+
+def with_device(config: ExperimentConfig, device: str) -> ExperimentConfig:
+    """``config`` training on another device (``train.device``: cpu, cuda or auto)."""
+    return replace(config, train=replace(config.train, device=device))

@@ -1,0 +1,292 @@
+"""Joint training of corrections and uncertainty through the differentiable preintegrator (AirIMU sec. III).
+
+One step: the network corrects a batch of windows and predicts their noise densities; ``preintegrate`` turns
+them into deltas and covariances at the supervised samples; the loss compares the deltas with the ground truth
+in the covariance's chart (``learned_imu.training.losses``). Adam with weight decay, learning rate reduced on
+plateaus of
+the validation loss. Deterministic on CPU for a seed: the shuffling generator and torch's global RNG (dropout)
+are part of ``Trainer.state_dict``, so a resumed run continues exactly where the interrupted one was. Under
+``torchrun`` (``world``) each rank trains on its shard of every batch and rank 0 validates
+(``learned_imu.training.distributed``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from learned_imu.errors import InputError
+from learned_imu.geometry.preintegration import preintegrate
+from learned_imu.network.model import AirImuNet, device_of
+from learned_imu.training.distributed import World, from_writer, global_loss, shard, wrap
+from learned_imu.training.losses import (
+    VARIANCE_FLOOR,
+    LossWeights,
+    delta_errors,
+    normalised_squared_errors_of_variance,
+    total_loss,
+)
+from learned_imu.training.windows import Windows
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class EpochLog:
+    """Mean training loss and validation loss of one epoch, and the learning rate used."""
+
+    epoch: int
+    train_loss: float
+    val_loss: float
+    lr: float
+
+
+def window_loss(
+    model: torch.nn.Module, windows: Windows, weights: LossWeights, use_covariance: bool = True
+) -> torch.Tensor:
+    """Loss of ``model`` (an ``AirImuNet`` or its DDP wrapper) on ``windows``, a mean over them (see the module
+    docstring)."""
+    out = windows.correct(model)
+    densities = (out.gyro_cov, out.acc_cov) if use_covariance else (None, None)
+    pre = preintegrate(out.gyro, out.acc, windows.dt, *densities, at=windows.at)
+    errors = delta_errors(pre, windows.start, windows.targets, windows.gravity)
+    return total_loss(errors, pre.cov, weights)
+
+
+class Trainer:
+    """Adam + ReduceLROnPlateau over shuffled mini-batches of windows; one ``epoch()`` at a time. With a
+    ``world``, ``model`` is trained through a DDP wrapper (``self.net``) and ``batch_size`` is the global batch."""
+
+    def __init__(
+        self,
+        model: AirImuNet,
+        train: Windows,
+        val: Windows,
+        batch_size: int = 16,
+        lr: float = 1e-3,
+        weight_decay: float = 1e-4,
+        weights: LossWeights | None = None,
+        use_covariance: bool = True,
+        plateau_factor: float = 0.5,
+        plateau_patience: int = 2,
+        seed: int = 0,
+        world: World | None = None,
+        device: str = "cpu",
+    ):
+        if batch_size < 1 or len(train) == 0 or len(val) == 0:
+            raise InputError(f"Trainer: need batch_size >= 1 and windows to train and validate, got {batch_size}")
+        # model (in place), windows and so every preintegration live on ``device``; the shuffling generator and
+        # the RNG state kept in checkpoints are the CPU's (on a GPU dropout draws from the CUDA generator, so a
+        # resumed GPU run is not bit-exact)
+        self.model, self.train, self.val = model.to(device), train.to(device), val.to(device)
+        self.batch_size, self.use_covariance = batch_size, use_covariance
+        self.weights = weights or LossWeights()
+        self.world = world
+        self.net = model if world is None else wrap(model, world, () if use_covariance else ("cov_decoder",))
+        self.generator = torch.Generator().manual_seed(seed)
+        self.optimiser = torch.optim.Adam(model.parameters(), lr=lr, weight_decay=weight_decay)
+        self.scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(
+            self.optimiser, factor=plateau_factor, patience=plateau_patience
+        )
+        self.epochs_done = 0
+
+    def epoch(self, on_batch: Callable[[float], None] | None = None) -> EpochLog:
+        """Train one pass over the shuffled training windows, validate, step the LR schedule."""
+        self.model.train()
+        order = torch.randperm(len(self.train), generator=self.generator)
+        losses = []
+        for first in range(0, len(self.train), self.batch_size):
+            index, scale = shard(order[first : first + self.batch_size], self.world)
+            loss = window_loss(self.net, self.train.select(index), self.weights, self.use_covariance)
+            self.optimiser.zero_grad()
+            (loss if scale == 1.0 else loss * scale).backward()
+            self.optimiser.step()
+            losses.append(global_loss(loss.item(), scale, self.world))
+            if on_batch is not None:
+                on_batch(losses[-1])
+        lr = self.optimiser.param_groups[0]["lr"]
+        val_loss = from_writer(self.validation_loss, self.world)
+        self.scheduler.step(val_loss)
+        entry = EpochLog(self.epochs_done, sum(losses) / len(losses), val_loss, lr)
+        self.epochs_done += 1
+        log.info("epoch %d: train %.5f, val %.5f, lr %.1e", entry.epoch, entry.train_loss, entry.val_loss, lr)
+        return entry
+
+    @torch.no_grad()
+    def validation_loss(self) -> float:
+        """State loss on the validation windows in eval mode (batched like training, to bound memory).
+
+        The model-selection criterion (best epoch, plateau, early stop) of every variant: the covariance's NLL is
+        left out, so runs with and without the covariance loss pick their corrections by the same measure (the noise
+        decoders are calibrated afterwards anyway, ``calibrate_uncertainty``)."""
+        self.model.eval()
+        total = 0.0
+        for first in range(0, len(self.val), self.batch_size):
+            batch = self.val.select(torch.arange(first, min(first + self.batch_size, len(self.val))))
+            total += window_loss(self.model, batch, self.weights, use_covariance=False).item() * len(batch)
+        return total / len(self.val)
+
+    def state_dict(self) -> dict:
+        """Everything needed to continue exactly: model, optimiser, schedule, RNG states, epochs done."""
+        return {
+            "model": self.model.state_dict(),
+            "optimiser": self.optimiser.state_dict(),
+            "scheduler": self.scheduler.state_dict(),
+            "generator": self.generator.get_state(),
+            "torch_rng": torch.get_rng_state(),
+            "epochs_done": self.epochs_done,
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        self.model.load_state_dict(state["model"])
+        self.optimiser.load_state_dict(state["optimiser"])
+        self.scheduler.load_state_dict(state["scheduler"])
+        self.generator.set_state(state["generator"])
+        torch.set_rng_state(state["torch_rng"])
+        self.epochs_done = int(state["epochs_done"])
+
+
+def fit(
+    model: AirImuNet,
+    train: Windows,
+    val: Windows,
+    epochs: int = 10,
+    batch_size: int = 16,
+    lr: float = 1e-3,
+    weight_decay: float = 1e-4,
+    weights: LossWeights | None = None,
+    use_covariance: bool = True,
+    seed: int = 0,
+) -> list[EpochLog]:
+    """Train ``model`` in place for ``epochs``; returns one ``EpochLog`` per epoch (no run folder)."""
+    trainer = Trainer(model, train, val, batch_size, lr, weight_decay, weights, use_covariance, seed=seed)
+    return [trainer.epoch() for _ in range(epochs)]
+
+
+def calibrate_uncertainty(
+    model: AirImuNet, windows: Windows, steps: int = 200, batch_size: int = 16, lr: float = 1e-3, seed: int = 0
+) -> float:
+    """Second stage: fit only the noise decoders by the covariance NLL, the rest of the network frozen, in eval
+    mode (as at inference). Returns the mean NLL of the last 20 steps.
+
+    ``windows`` are moved to the model's device.
+
+    Why: in joint training the first epochs see errors of the raw, uncorrected IMU (hundreds of sigmas), and Adam's
+    second-moment memory of those gradients then shrinks the noise decoders' steps by orders of magnitude, so their
+    output lags behind the corrections' improvement and over-predicts the noise (measured on EuRoC: e^2/sigma^2 of
+    about 0.03 after joint training, 0.4-1.1 after this stage). A fresh optimiser on the final errors fixes it.
+    """
+    from learned_imu.training.losses import covariance_nll
+
+    heads = [p for name, p in model.named_parameters() if "cov_decoder" in name]
+    if not heads:
+        raise InputError("calibrate_uncertainty: the model has no noise decoders ('*cov_decoder*' parameters)")
+    frozen = [(p, p.requires_grad) for p in model.parameters()]
+    for p, _ in frozen:
+        p.requires_grad_(False)
+    for p in heads:
+        p.requires_grad_(True)
+    optimiser = torch.optim.Adam(heads, lr=lr)
+    generator = torch.Generator().manual_seed(seed)
+    windows = windows.to(heads[0].device)
+    model.eval()
+    losses = []
+    try:
+        for _ in range(steps):
+            pick = torch.randint(0, len(windows), (min(batch_size, len(windows)),), generator=generator)
+            batch = windows.select(pick)
+            out = batch.correct(model)
+            pre = preintegrate(out.gyro, out.acc, batch.dt, out.gyro_cov, out.acc_cov, at=batch.at)
+            errors = delta_errors(pre, batch.start, batch.targets, batch.gravity).detach()
+            loss = covariance_nll(errors, pre.cov)
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+            losses.append(loss.item())
+    finally:
+        for p, flag in frozen:
+            p.requires_grad_(flag)
+    return sum(losses[-20:]) / max(1, len(losses[-20:]))
+
+
+@dataclass(frozen=True, eq=False)
+class NoiseResiduals:
+    """A model's delta errors on windows (M, K, 9) and the diagonal variances (M, K, 9) that its gyro noise and its
+    acc noise contribute to their covariance, float64 (``noise_residuals``).
+
+    The propagated covariance is linear in the densities, so densities scaled by (s_g, s_a) have exactly the
+    variances ``s_g gyro_var + s_a acc_var``: the calibration under any scaling follows without running the model
+    again."""
+
+    errors: torch.Tensor
+    gyro_var: torch.Tensor
+    acc_var: torch.Tensor
+
+    def nse(self, gyro_scale: float = 1.0, acc_scale: float = 1.0) -> np.ndarray:
+        """(3,) mean e^2 / sigma^2 of rotation, position, velocity with the densities scaled as given."""
+        variance = gyro_scale * self.gyro_var + acc_scale * self.acc_var
+        return normalised_squared_errors_of_variance(self.errors, variance).numpy()
+
+    def best_scales(self) -> tuple[float, float]:
+        """The (gyro, acc) density scales of maximum likelihood: a two-parameter fit of the diagonal Gaussian NLL
+        (the covariance loss's)."""
+        squared = self.errors.square()
+        log_scales = torch.zeros(2, dtype=torch.float64, requires_grad=True)
+        optimiser = torch.optim.LBFGS([log_scales], max_iter=100, line_search_fn="strong_wolfe")
+
+        def nll():
+            optimiser.zero_grad()
+            scales = torch.exp(log_scales)
+            variance = scales[0] * self.gyro_var + scales[1] * self.acc_var + VARIANCE_FLOOR
+            loss = (torch.log(variance) + squared / variance).mean()
+            loss.backward()
+            return loss
+
+        optimiser.step(nll)
+        gyro_scale, acc_scale = torch.exp(log_scales.detach()).tolist()
+        return gyro_scale, acc_scale
+
+
+@torch.no_grad()
+def noise_residuals(model: AirImuNet, windows: Windows, batch_size: int = 64) -> NoiseResiduals:
+    """The model (eval mode) on ``windows``: its errors and its two noise variances (see ``NoiseResiduals``),
+    from two float64 preintegrations per batch, one with each sensor's noise alone (on the model's device; the
+    result on the CPU)."""
+    model.eval()
+    windows = windows.to(device_of(model))
+    errors, gyro_var, acc_var = [], [], []
+    for first in range(0, len(windows), batch_size):
+        batch = windows.select(torch.arange(first, min(first + batch_size, len(windows))))
+        out = batch.correct(model)
+        gyro, acc, dt = out.gyro.double(), out.acc.double(), batch.dt.double()
+        gyro_cov, acc_cov = out.gyro_cov.double(), out.acc_cov.double()
+        from_gyro = preintegrate(gyro, acc, dt, gyro_cov, torch.zeros_like(acc_cov), at=batch.at)
+        from_acc = preintegrate(gyro, acc, dt, torch.zeros_like(gyro_cov), acc_cov, at=batch.at)
+        start, end = (type(s)(*(x.double() for x in (s.rot, s.vel, s.pos))) for s in (batch.start, batch.targets))
+        errors.append(delta_errors(from_gyro, start, end, batch.gravity.double()))
+        gyro_var.append(torch.diagonal(from_gyro.cov, dim1=-2, dim2=-1))
+        acc_var.append(torch.diagonal(from_acc.cov, dim1=-2, dim2=-1))
+    return NoiseResiduals(*(torch.cat(x).cpu() for x in (errors, gyro_var, acc_var)))
+
+
+def fit_noise_scales(model: AirImuNet, windows: Windows) -> tuple[float, float]:
+    """Scales (gyro, acc) of the model's noise densities that maximise the likelihood of ``windows``' errors
+    (``noise_residuals(...).best_scales()``). Meant for windows the corrections were not fitted to (the validation
+    set): residuals there are larger than on the training windows, where the noise decoders learned them, and one
+    global scale per sensor is what a few held-out windows can pin down without overfitting (variance scaling, as
+    temperature scaling for classifiers)."""
+    return noise_residuals(model, windows).best_scales()
+
+
+def scale_noise(model: AirImuNet, gyro_scale: float, acc_scale: float) -> None:
+    """Multiply the model's output noise densities by the given factors (in place, through its buffers)."""
+    if not (gyro_scale > 0 and acc_scale > 0):
+        raise InputError(f"scale_noise: scales must be positive, got {gyro_scale}, {acc_scale}")
+    with torch.no_grad():
+        model.log_init_gyro_density += math.log(gyro_scale)
+        model.log_init_acc_density += math.log(acc_scale)

@@ -13,6 +13,7 @@ from fusion.fuse import read_gps_csv
 from learned_imu.errors import DataError
 
 
+@pytest.mark.slow
 def test_fuse_gtsams_kitti_drive_with_its_real_gps(shared_data, tmp_path):
     from evo.tools import file_interface
 
@@ -111,6 +112,7 @@ def write_bag_with_navsatfix(path, seq, fixes_every: int, sigma: float):
     return path, origin  # the first kept fix: the origin of the reader's local ENU frame
 
 
+@pytest.mark.slow
 def test_fuse_a_ros2_bag_with_navsatfix(tmp_path):
     from learned_imu.datasets import read_sequence
     from learned_imu.datasets.simulator import simulate

@@ -199,6 +199,7 @@ def test_bad_input_is_refused_by_name(sequence):
         fusion.add_imu(seq.t[:30], seq.gyro[:30], seq.acc[:30])
 
 
+@pytest.mark.slow
 def test_isam2_example_runs_and_fuses():
     run = subprocess.run([sys.executable, str(REPO / "examples" / "isam2_learned_factors.py")],
                          capture_output=True, text=True, timeout=300, check=True)  # fmt: skip

@@ -38,6 +38,7 @@ def ablation(tmp_path_factory):
     return result.output, files
 
 
+@pytest.mark.slow
 def test_table_rows_and_files(ablation):
     output, files = ablation
     rows = json.loads(files["json"].read_text())

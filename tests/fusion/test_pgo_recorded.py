@@ -62,6 +62,7 @@ def test_gap_noise_raises_only_the_interval_across_the_gap(drive, tmp_path):
     np.testing.assert_allclose(np.delete(ratio, across - 1, axis=0), 1.0, rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_recorded_rows_one_draw_per_phase_with_the_gtsam_example(drive, tmp_path):
     options = PgoOptions(
         gps_hz=(1.0, 0.2), seeds=10, gps_source="recorded", keyframes="fixes", gtsam_example=True,

@@ -247,6 +247,7 @@ def test_preintegrate_equals_the_sample_loop(args):
     assert rel_err(scan.cov, scan.cov.mT) < 1e-12  # symmetric
 
 
+@pytest.mark.slow
 @PROPERTY
 @given(args=imu_inputs(max_n=120), data=st.data())
 def test_reported_samples_equal_the_sample_loop_at_those_samples(args, data):

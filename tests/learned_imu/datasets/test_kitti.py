@@ -71,6 +71,7 @@ def test_malformed_imu_row(shared_data, tmp_path):
     assert err.value.line == 121
 
 
+@pytest.mark.slow
 def test_module_does_not_import_gtsam():
     code = "import sys, learned_imu.datasets; print('gtsam' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout

@@ -19,6 +19,7 @@ def drives(shared_data):
     return sorted((shared_data / "kitti_raw").glob("*.csv"))
 
 
+@pytest.mark.slow
 def test_every_shared_drive_reads_and_passes_the_frame_self_check(shared_data):
     paths = drives(shared_data)
     assert len(paths) == 39

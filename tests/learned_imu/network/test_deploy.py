@@ -119,6 +119,7 @@ def test_onnx_streaming_equals_pytorch_stream_and_correct_sequence(exported):
     assert_outputs_close([o[1] for o in outs], [whole.gyro, whole.acc, whole.gyro_cov, whole.acc_cov])
 
 
+@pytest.mark.slow
 def test_onnx_stream_end_padded_to_a_block_equals_the_flushed_stream(exported):
     model, onnx_path, _ = exported
     n = 4 * BLOCK + 5  # the last block is partial: pad it with the last sample, drop the padding's outputs
@@ -130,6 +131,7 @@ def test_onnx_stream_end_padded_to_a_block_equals_the_flushed_stream(exported):
     assert_outputs_close([o[0, :n] for o in outs], [whole.gyro, whole.acc, whole.gyro_cov, whole.acc_cov])
 
 
+@pytest.mark.slow
 def test_torchscript_streaming_equals_pytorch_stream(exported):
     model, _, script_path = exported
     step = torch.jit.load(str(script_path))
@@ -148,6 +150,7 @@ def test_torchscript_streaming_equals_pytorch_stream(exported):
         torch.testing.assert_close(a, e, **TOL)
 
 
+@pytest.mark.slow
 def test_onnx_runs_without_torch_or_this_package(exported, tmp_path):
     model, onnx_path, _ = exported
     gyro, acc = samples(2 * BLOCK, batch=1, seed=3)
@@ -171,6 +174,7 @@ def test_onnx_runs_without_torch_or_this_package(exported, tmp_path):
     torch.testing.assert_close(torch.as_tensor(out["acc_cov"][0]), whole.acc_cov, **DENSITY_TOL)
 
 
+@pytest.mark.slow
 def test_onnx_names_axes_and_metadata(exported):
     model, onnx_path, _ = exported
     session = onnx_session(onnx_path)
@@ -187,6 +191,7 @@ def test_onnx_names_axes_and_metadata(exported):
     assert meta["block"] == str(BLOCK) and "rad^2/s" in meta["units"]
 
 
+@pytest.mark.slow
 def test_chunk_that_is_not_a_block_multiple_is_refused(exported):
     model, onnx_path, script_path = exported
     gyro, acc = samples(BLOCK + 1, batch=1)
@@ -215,6 +220,7 @@ def checkpoint(path, model: AirImuNet, remove_gravity: bool = False):
     return save_checkpoint(path, config, {"model": model.state_dict()}, {})
 
 
+@pytest.mark.slow
 def test_cli_exports_a_checkpoint_that_onnxruntime_runs(tmp_path):
     from typer.testing import CliRunner
 

@@ -70,6 +70,7 @@ def test_run_folder_holds_config_metrics_and_checkpoints(tmp_path):
         correct(model, simulate("drone", duration_s=2.0, rate_hz=100.0, seed=9))
 
 
+@pytest.mark.slow
 def test_resumed_run_equals_uninterrupted_run(tmp_path):
     train_run(TINY, tmp_path / "whole", progress=False)
     train_run(with_epochs(TINY, 2), tmp_path / "resumed", progress=False)
@@ -118,6 +119,7 @@ def test_average_bias_recovers_a_constant_simulated_bias():
     np.testing.assert_allclose(bias.acc_m_s2, truth.acc_bias.mean(axis=0), atol=1e-3)
 
 
+@pytest.mark.slow
 def test_ablation_scores_every_setting(tmp_path):
     rows = ablate(TINY, tmp_path / "ablation", progress=False)
     assert [r.variant for r in rows] == [v.name for v in VARIANTS]
@@ -136,6 +138,7 @@ def test_ablation_scores_every_setting(tmp_path):
     assert by["Baseline"].seed is None and by["AirIMU"].seed == TINY.train.seed
 
 
+@pytest.mark.slow
 def test_ablation_over_seeds_trains_each_learned_variant_per_seed(tmp_path):
     from learned_imu.evaluation.ablation import summarise
 
@@ -152,6 +155,7 @@ def test_ablation_over_seeds_trains_each_learned_variant_per_seed(tmp_path):
     assert np.isclose(summary["AirIMU"].std["roe_deg"], abs(rows[1].roe_deg - rows[2].roe_deg) / 2)
 
 
+@pytest.mark.slow
 def test_ablate_imu_cli_with_seeds_prints_the_summary_and_writes_seeded_rows(tmp_path):
     from typer.testing import CliRunner
 
@@ -294,6 +298,7 @@ def test_cli_refuses_an_unknown_device_and_a_non_positive_epoch_budget(tmp_path)
         assert result.exit_code != 0 and flag in result.output
 
 
+@pytest.mark.slow
 def test_small_euroc_config_trains_and_scores_on_real_data(tmp_path, shared_data):
     """configs/euroc_small.yaml end to end on the real MH_01 / V1_02 excerpt (one epoch: the plumbing, not the
     accuracy; the accuracy is BENCHMARKS.md's)."""

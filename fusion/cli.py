@@ -63,8 +63,8 @@ def _run_pgo(config, out, json_out, csv_out, rrd, png, epochs, progress, data_ro
     _check_outputs(files={"--json": json_out, "--csv": csv_out, "--rrd": rrd, "--png": png}, folders={"--out": out})
 
     from fusion.figures import plot
-    from fusion.pipeline import ablate_pgo as run
-    from fusion.pipeline import paper_ate, record, write_table
+    from fusion.pgo import ablate_pgo as run
+    from fusion.pgo import paper_ate, record, write_table
 
     console = _wide_console()
     results = run(config, out, progress=progress, data_root=data_root, epochs=epochs)

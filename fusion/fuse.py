@@ -164,7 +164,7 @@ def write_outputs(result: Fused, folder: Path, reference: GpsFixes | Gps | None 
     each written atomically. Returns the summary and the paths."""
     from fusion.figures import plot
     from fusion.graph import with_marginals
-    from fusion.pipeline import SequenceResult, record
+    from fusion.pgo import SequenceResult, record
     from learned_imu.io import atomic_file, output_folder, write_json_atomic
 
     output_folder(folder)

@@ -16,6 +16,11 @@ on the raw IMU (its noise densities from ``KittiEquivBiasedImu_metadata.txt``, i
 per keyframe with its per-sample random walk and bias prior), in the same graph, keyframes, GPS fixes and noise,
 first-state prior and Levenberg-Marquardt solver as the other rows (the example runs ISAM2 with a keyframe at every
 1 Hz fix; ``benchmarks/kitti_gtsam_example.py`` runs it as shipped).
+
+The product's main job end to end is ``ablate_pgo(config, out)``: it trains the configured model (or finishes its
+interrupted run), corrects every evaluation sequence, runs the ablation (``run_sequence``) and returns what each
+sequence produced (``SequenceResult``), from which ``record`` writes a Rerun recording and ``fusion.figures.plot``
+a PNG; ``write_table`` writes the rows.
 """
 
 from __future__ import annotations
@@ -23,18 +28,27 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import weakref
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from factors import load_export
-from fusion.graph import BiasStates, FusionSettings, Gps, Solution, build_graph, solve
-from learned_imu.config import check_noise_density
+from fusion.graph import BiasStates, FusionSettings, Gps, Solution, build_graph, solve, with_marginals
+from learned_imu.config import check_noise_density, load_config
 from learned_imu.datasets.sequence import GpsFixes, ImuSequence, gap_indices
 from learned_imu.errors import ConfigError, InputError
+from learned_imu.evaluation.evaluate import dead_reckoning
 from learned_imu.export import export_preintegration, keyframes_every, nearest_samples
+from learned_imu.network.checkpoint import model_from_checkpoint
+from learned_imu.network.inference import correct
 from learned_imu.network.model import Correction
+from learned_imu.training.experiment import load_sequences, train_run, with_epochs
+
+if TYPE_CHECKING:
+    from fusion.config import PgoConfig
 
 log = logging.getLogger(__name__)
 SCORE_SPANS = ("keyframes", "gps")
@@ -286,3 +300,98 @@ def run_sequence(
             rows.append(PgoRow(setting.name, rate, sequence.name, float(np.mean(ates)), float(np.std(ates))))
             log.info("%s", asdict(rows[-1]))
     return rows, examples
+
+
+@dataclass(frozen=True, eq=False)
+class SequenceResult:
+    """What one sequence produced: its rows, the model output, and one solution per setting (first rate, seed 0)."""
+
+    sequence: ImuSequence
+    correction: Correction
+    rows: list[PgoRow]
+    examples: dict
+
+
+def ablate_pgo(
+    config: PgoConfig,
+    out: str | Path,
+    progress: bool = True,
+    data_root: str | Path | None = None,
+    epochs: int | None = None,
+) -> list[SequenceResult]:
+    """Run the PGO ablation of ``config`` (see the module docstring); exports go to ``out/exports``."""
+    out = Path(out)
+    experiment = load_config(config.experiment, data_root=data_root)
+    if epochs:
+        experiment = with_epochs(experiment, epochs)
+    run = Path(config.run)
+    from fusion.recording import write_training_recording
+
+    # resumes an interrupted run, drawing its epochs into run/training.rrd; returns at once if finished
+    train_run(experiment, run, progress=progress, on_epoch=write_training_recording)
+    model, _ = model_from_checkpoint(run / "best.pt")
+    specs = config.sequences or experiment.data.evaluate or experiment.data.val
+    results = []
+    for sequence in load_sequences(specs, experiment.data.root):
+        correction = correct(model, sequence, experiment.train.remove_gravity)
+        rows, examples = run_sequence(sequence, correction, out / "exports", config.options, config.fusion)
+        results.append(SequenceResult(sequence, correction, rows, examples))
+    return results
+
+
+def record(result: SequenceResult, path: str | Path) -> Path:
+    """A Rerun recording of one sequence (``fusion.recording``): ground truth, GPS, fused tracks with covariance
+    ellipsoids, errors against 3-sigma bounds, raw and AirIMU dead reckoning, IMU series, corrections, sigmas."""
+    from fusion.recording import ImuSeries, Track, write_recording
+
+    seq, c = result.sequence, result.correction
+    fused = [Track(name, *marginal_track(solution)) for name, (solution, _) in result.examples.items()]
+    times = fused[0].t
+    truth, drift = None, []
+    if seq.gt is not None:
+        truth = Track("ground truth", seq.t, seq.gt.pos)
+        drift = [
+            Track("raw IMU", times, _at_times(seq, dead_reckoning(seq, seq.gyro, seq.acc), times)),
+            Track("AirIMU", times, _at_times(seq, dead_reckoning(seq, c.gyro.numpy(), c.acc.numpy()), times)),
+        ]
+    gps = next(iter(result.examples.values()))[1]
+    imu = ImuSeries(seq.t, seq.gyro, seq.acc, c.d_gyro.numpy(), c.d_acc.numpy(), c.gyro_cov.numpy(), c.acc_cov.numpy())
+    return write_recording(path, fused, truth, drift, (gps.t, gps.pos), imu)
+
+
+def _at_times(sequence: ImuSequence, pos: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Per-sample positions (N, 3) at ``times`` (the sample at or after each time)."""
+    return pos[np.clip(np.searchsorted(sequence.t, times), 0, len(sequence) - 1)]
+
+
+def marginal_track(solution) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(t, pos, pos_cov) of a solution's keyframes, the marginals computed once per solution."""
+    if solution not in _MARGINALS:
+        trajectory = with_marginals(solution)
+        _MARGINALS[solution] = (trajectory.t, trajectory.pos, trajectory.pos_cov)
+    return _MARGINALS[solution]
+
+
+_MARGINALS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # record() and plot() share them
+
+
+def paper_ate(row: PgoRow) -> float | None:
+    """The paper's ATE (m) for a row's sequence, GPS rate and setting, or None where it has none."""
+    from learned_imu.evaluation.paper import EUROC_PGO
+
+    return EUROC_PGO.get(row.sequence, {}).get(row.gps_hz, {}).get(row.setting)
+
+
+def write_table(rows: list[PgoRow], json_path: str | Path | None = None, csv_path: str | Path | None = None) -> None:
+    """The ablation rows as JSON (keys setting, gps_hz, sequence, ate_mean_m, ate_std_m, paper_ate_m) and/or CSV,
+    atomically; ``paper_ate_m`` is the AirIMU paper's published ATE for that cell (``learned_imu.evaluation.paper``),
+    or null."""
+    from dataclasses import asdict
+
+    from learned_imu.io import write_csv_atomic, write_json_atomic
+
+    records = [{**asdict(r), "paper_ate_m": paper_ate(r)} for r in rows]
+    if json_path:
+        write_json_atomic(json_path, records)
+    if csv_path:
+        write_csv_atomic(csv_path, records)

@@ -82,10 +82,7 @@ def evaluate(
 
     # Dead reckoning over the whole valid span from the first state, for ATE.
     first, last = _valid_span(gt.valid)
-    whole = preintegrate(as_t(gyro[first:last]), as_t(acc[first:last]), as_t(dt[first:last]))
-    origin = NavState(rot=as_t(gt.rot[first]), vel=as_t(gt.vel[first]), pos=as_t(gt.pos[first]))
-    track = predict(origin, whole, gravity=as_t(sequence.gravity)).pos.numpy()
-    est = np.concatenate([gt.pos[first : first + 1], track[:-1]])  # states first .. last - 1
+    est = dead_reckoning(sequence, gyro, acc, first, last)
     truth, valid = gt.pos[first:last], gt.valid[first:last]
 
     return Evaluation(
@@ -103,6 +100,18 @@ def evaluate(
         ate_m=metrics.ate_m(est[valid], truth[valid], align=False),
         ate_aligned_m=metrics.ate_m(est[valid], truth[valid], align=True),
     )
+
+
+def dead_reckoning(sequence: ImuSequence, gyro, acc, first: int = 0, last: int | None = None) -> np.ndarray:
+    """(last - first, 3) world positions, m, of samples ``first`` .. ``last - 1`` of the IMU ``gyro``/``acc`` (N, 3)
+    integrated from the ground-truth state at sample ``first`` (default: the whole sequence)."""
+    last = len(sequence) if last is None else last
+    gt, as_t = sequence.gt, torch.as_tensor
+    take = slice(first, last)
+    pre = preintegrate(as_t(np.asarray(gyro)[take]), as_t(np.asarray(acc)[take]), as_t(sequence.dt[take]))
+    origin = NavState(rot=as_t(gt.rot[first]), vel=as_t(gt.vel[first]), pos=as_t(gt.pos[first]))
+    track = predict(origin, pre, gravity=as_t(sequence.gravity)).pos.numpy()
+    return np.concatenate([gt.pos[first : first + 1], track[:-1]])  # the state at each sample, before it
 
 
 def _window_length(sequence: ImuSequence, interval: float, unit: str) -> int:

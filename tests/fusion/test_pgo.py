@@ -84,8 +84,7 @@ def test_recording_reads_back(ablation):
 
 
 def test_pgo_rows_of_the_papers_sequences_carry_its_ate():
-    from fusion.pgo import PgoRow
-    from fusion.pipeline import paper_ate
+    from fusion.pgo import PgoRow, paper_ate
 
     assert paper_ate(PgoRow("AirIMU + learned cov", 0.1, "V2_02_medium", 0.9, 0.1)) == 0.8927
     assert paper_ate(PgoRow("raw IMU + fixed cov", 1.0, "MH_04_difficult", 0.2, 0.0)) == 0.1491

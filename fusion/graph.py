@@ -45,6 +45,7 @@ from fusion.initial import (
     priors_on_first,
     sequential_initial_values,
 )
+from learned_imu.datasets._rotations import matrix_to_quat_wxyz
 from learned_imu.errors import ConfigError, InputError
 from learned_imu.io import atomic_file
 
@@ -148,7 +149,7 @@ class Trajectory:
 
     def write_tum(self, path: str | Path) -> Path:
         """TUM format (``t x y z qx qy qz qw``, quaternion world <- IMU, scalar last) for ``evo_ape tum``."""
-        quat = np.array([gtsam.Rot3(r).toQuaternion().coeffs() for r in self.rot])  # Eigen order x, y, z, w
+        quat = np.roll(matrix_to_quat_wxyz(self.rot), -1, axis=-1)  # x, y, z, w
         rows = np.column_stack([self.t, self.pos, quat])
         with atomic_file(path) as f:
             f.write("# timestamp tx ty tz qx qy qz qw\n")

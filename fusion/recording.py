@@ -38,6 +38,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from fusion import colors
+from learned_imu.datasets._rotations import matrix_to_quat_wxyz
 
 TIMELINE = "time"
 SIGMA_SCALE = 3.0  # ellipsoid half-sizes and error bounds in standard deviations
@@ -229,7 +230,7 @@ def _send_ellipsoids(rec, entity: str, track: Track, color) -> None:
     eigval, eigvec = np.linalg.eigh(track.pos_cov)
     eigvec = eigvec * np.sign(np.linalg.det(eigvec))[:, None, None]  # proper rotations
     half_sizes = SIGMA_SCALE * np.sqrt(np.clip(eigval, 0.0, None))
-    quat_xyzw = np.array([_quaternion_xyzw(r) for r in eigvec])
+    quat_xyzw = np.roll(matrix_to_quat_wxyz(eigvec), -1, axis=-1)  # Rerun takes x, y, z, w
     _send(rec, entity, track.t, rr.Ellipsoids3D.columns(centers=track.pos, half_sizes=half_sizes,
                                                         quaternions=quat_xyzw))  # fmt: skip
     rec.log(entity, rr.Ellipsoids3D.from_fields(colors=color, line_radii=rr.Radius.ui_points(1.0)), static=True)
@@ -343,17 +344,3 @@ def _slug(name: str) -> str:
     return re.sub(r"[^a-z0-9]+", "_", name.lower()).strip("_")
 
 
-def _quaternion_xyzw(rot: np.ndarray) -> np.ndarray:
-    """Unit quaternion (x, y, z, w) of a rotation matrix (Shepperd's method)."""
-    w = np.sqrt(max(0.0, 1.0 + np.trace(rot))) / 2
-    if w > 1e-6:
-        return np.array([(rot[2, 1] - rot[1, 2]) / (4 * w), (rot[0, 2] - rot[2, 0]) / (4 * w),
-                         (rot[1, 0] - rot[0, 1]) / (4 * w), w])  # fmt: skip
-    i = int(np.argmax(np.diag(rot)))
-    j, k = (i + 1) % 3, (i + 2) % 3
-    q = np.zeros(4)
-    q[i] = np.sqrt(max(0.0, 1.0 + rot[i, i] - rot[j, j] - rot[k, k])) / 2
-    q[j] = (rot[j, i] + rot[i, j]) / (4 * q[i])
-    q[k] = (rot[k, i] + rot[i, k]) / (4 * q[i])
-    q[3] = (rot[k, j] - rot[j, k]) / (4 * q[i])
-    return q / np.linalg.norm(q)

@@ -39,8 +39,13 @@ def quat_to_matrix(q: np.ndarray, order: str, source: object = "", field: str = 
 
 
 def matrix_to_quat_wxyz(rot: np.ndarray) -> np.ndarray:
-    """(N, 4) unit quaternions (w, x, y, z) of (N, 3, 3) rotation matrices."""
-    return Rotation.from_matrix(rot).as_quat()[:, [3, 0, 1, 2]]
+    """(..., 4) unit quaternions (w, x, y, z), w >= 0, of (..., 3, 3) rotation matrices: the numpy face of
+    ``learned_imu.geometry.so3.matrix_to_quaternion_wxyz`` (the toolkit's one conversion), in float64."""
+    import torch
+
+    from learned_imu.geometry.so3 import matrix_to_quaternion_wxyz
+
+    return matrix_to_quaternion_wxyz(torch.as_tensor(np.asarray(rot, dtype=np.float64))).numpy()
 
 
 def relative_rotvec(rot_a: np.ndarray, rot_b: np.ndarray) -> np.ndarray:

@@ -20,10 +20,12 @@ import numpy as np
 
 def run(seq, gps, model, keyframe_s: float, block: int, smoother: str, lag_s: float) -> tuple[dict, object]:
     """Feed the whole sequence; wall times (s) per call kind, and the fusion's final trajectory."""
+    import gtsam
+
     from fusion.online import OnlineFusion
 
-    fusion = OnlineFusion(model, seq.gravity, (seq.gt.rot[0], seq.gt.pos[0], seq.gt.vel[0]), keyframe_s,
-                          1e-3**2, 1e-2**2, smoother=smoother, lag_s=lag_s)  # fmt: skip
+    first = gtsam.NavState(gtsam.Pose3(gtsam.Rot3(seq.gt.rot[0]), seq.gt.pos[0]), seq.gt.vel[0])
+    fusion = OnlineFusion(model, seq.gravity, first, keyframe_s, 1e-3**2, 1e-2**2, smoother=smoother, lag_s=lag_s)
     times: dict[str, list[float]] = {"imu (buffer only)": [], "imu + keyframe update": [], "gps": [], "state": []}
     fix = 0
     clock = time.perf_counter

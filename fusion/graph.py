@@ -197,9 +197,9 @@ def build_graph(
 ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
     """The pose graph of an export and GPS fixes, and its initial values (see the module docstring).
 
-    ``initial_state`` = (rot (3, 3), pos (3,), vel (3,)) anchors the prior on keyframe 0; default: the export's
-    ground truth at the first keyframe if it has one, else an initial alignment to the GPS track (position and
-    velocity from the fixes, roll and pitch from gravity, yaw by search; its prior is loose:
+    ``initial_state`` (a ``gtsam.NavState``: pose world <- IMU, world velocity m/s) anchors the prior on keyframe 0;
+    default: the export's ground truth at the first keyframe if it has one, else an initial alignment to the GPS
+    track (position and velocity from the fixes, roll and pitch from gravity, yaw by search; its prior is loose:
     ``ALIGNED_PRIOR_SIGMAS``). ``bias``: estimate a bias per keyframe interval (module docstring); the initial
     values are then found on the graph without bias states, every bias starting at zero.
     """

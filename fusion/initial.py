@@ -17,6 +17,7 @@ import gtsam
 import numpy as np
 
 from factors import Export
+from learned_imu.errors import InputError
 
 X, V, B = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V, gtsam.symbol_shorthand.B
 MIN_FIXES_PER_WINDOW = 3  # GPS fixes per window of the sequential initialisation
@@ -24,15 +25,31 @@ YAW_STEP_DEG = 30.0  # heading grid of the initial alignment (sequences without 
 ALIGNED_PRIOR_SIGMAS = (0.2, 1.0, 1.0)  # rad, m, m/s: prior on an aligned (not known) first state
 
 
+def first_state(initial_state, where: str) -> tuple[gtsam.Pose3, np.ndarray]:
+    """(pose, velocity) of a ``gtsam.NavState`` given as the first state (world <- IMU pose, world velocity m/s);
+    anything else is an ``InputError`` showing how to build one (the old ``(rot, pos, vel)`` tuple read in another
+    order than ``learned_imu``'s ``NavState(rot, vel, pos)``, so it is no longer taken)."""
+    if not isinstance(initial_state, gtsam.NavState):
+        raise InputError(
+            f"{where}: initial_state must be a gtsam.NavState, e.g. gtsam.NavState(gtsam.Pose3(gtsam.Rot3(rot), pos), "
+            f"vel) with rot (3, 3) world <- IMU, pos (3,) m, vel (3,) m/s; got {type(initial_state).__name__}"
+        )
+    pose, vel = initial_state.pose(), np.asarray(initial_state.velocity(), dtype=float)
+    if not (np.all(np.isfinite(pose.matrix())) and np.all(np.isfinite(vel))):
+        raise InputError(f"{where}: initial_state holds NaN or Inf")
+    return pose, vel
+
+
 def known_first_state(export: Export, initial_state) -> tuple[gtsam.Pose3, np.ndarray] | None:
-    """The prior's state: ``initial_state``, else the export's ground truth at the first keyframe, else None."""
-    if initial_state is None and "gt_rot" in export.arrays:
-        first = int(export.keyframe_index[0])
-        initial_state = (export.arrays["gt_rot"][first], export.arrays["gt_pos"][first], export.arrays["gt_vel"][first])
-    if initial_state is None:
+    """The prior's state: ``initial_state`` (a ``gtsam.NavState``), else the export's ground truth at the first
+    keyframe, else None."""
+    if initial_state is not None:
+        return first_state(initial_state, "build_graph")
+    if "gt_rot" not in export.arrays:
         return None
-    rot, pos, vel = (np.asarray(x, dtype=float) for x in initial_state)
-    return gtsam.Pose3(gtsam.Rot3(rot), pos), vel
+    first = int(export.keyframe_index[0])
+    a = export.arrays
+    return gtsam.Pose3(gtsam.Rot3(a["gt_rot"][first]), a["gt_pos"][first]), np.asarray(a["gt_vel"][first], float)
 
 
 def aligned_first_state(export: Export, times, gps, imu_factors, gps_factors, settings):

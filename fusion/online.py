@@ -34,7 +34,7 @@ import torch
 from factors import GpsFactor, gps_noise, learned_pim
 from factors.gps import ROBUST_LOSSES
 from fusion.graph import Trajectory
-from fusion.initial import priors_on_first
+from fusion.initial import first_state, priors_on_first
 from learned_imu.errors import AirImuError, InputError
 from learned_imu.network.inference import check_times_rate
 from learned_imu.network.model import DEFAULT_ACC_COV, DEFAULT_GYRO_COV, AirImuNet
@@ -79,7 +79,8 @@ class OnlineFusion:
     Args:
         model: an ``AirImuNet`` in eval mode, or None for the raw samples with ``gyro_cov`` / ``acc_cov``.
         gravity: (3,) gravity vector in the world frame, m/s^2.
-        initial_state: (rot (3, 3) world <- IMU, pos (3,) m, vel (3,) m/s) at the first IMU sample: the prior's mean.
+        initial_state: ``gtsam.NavState`` (pose world <- IMU, world velocity m/s) at the first IMU sample: the prior's
+            mean.
         keyframe_s: keyframe interval, s (each keyframe costs CPU time: BENCHMARKS.md, "Online fusion").
         gyro_cov, acc_cov: noise densities without a model, sigma^2: rad^2/s and m^2/s^3 (float or (3,)).
         smoother: ``"isam2"`` (keeps every keyframe) or ``"fixed_lag"`` (keeps the last ``lag_s`` seconds; an older
@@ -114,8 +115,7 @@ class OnlineFusion:
             raise InputError(f"OnlineFusion: need keyframe_s > 0 and lag_s >= 2 keyframe_s, got {keyframe_s}, {lag_s}")
         self._model, self._keyframe_s, self._lag_s = model, float(keyframe_s), float(lag_s)
         self._gravity = _vector("gravity", gravity)
-        rot, pos, vel = (np.asarray(x, dtype=float) for x in initial_state)
-        self._first = (gtsam.Pose3(gtsam.Rot3(rot), _vector("initial pos", pos)), _vector("initial vel", vel))
+        self._first = first_state(initial_state, "OnlineFusion")
         self._prior_sigmas = (float(prior_rot_sigma_rad), float(prior_pos_sigma_m), float(prior_vel_sigma_m_s))
         self._density = np.hstack([np.broadcast_to(np.asarray(d, float), (3,)) for d in (gyro_cov, acc_cov)])
         if not np.all(self._density > 0) or min(self._prior_sigmas) <= 0:

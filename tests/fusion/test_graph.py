@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import gtsam
 import numpy as np
 import pytest
 
@@ -87,7 +88,7 @@ def test_without_ground_truth_the_first_state_is_aligned_to_the_gps_track(tmp_pa
     assert "gt_rot" not in export.arrays
     fuse, truth = gps_for(seq, 0.2, 0.1, seed=0)  # a fix every 5 s
     first = int(export.keyframe_index[0])
-    known = (seq.gt.rot[first], seq.gt.pos[first], seq.gt.vel[first])
+    known = gtsam.NavState(gtsam.Pose3(gtsam.Rot3(seq.gt.rot[first]), seq.gt.pos[first]), seq.gt.vel[first])
     ates, first_rot = {}, {}
     for name, initial in (("aligned", None), ("known", known)):
         graph, values = build_graph(export, fuse, initial_state=initial)
@@ -160,3 +161,17 @@ def test_bias_states_match_a_graph_of_gtsams_own_preintegration(tmp_path):
     solved = solve(graph, values, export.keyframe_t, settings)
     assert ate_m(solved, truth) < 0.5 * ate_m(without, truth)
     np.testing.assert_allclose(solved.trajectory.pos, ours.trajectory.pos, atol=0.05)  # two models of one walk
+
+
+def test_the_first_state_is_a_gtsam_navstate():
+    """A (rot, pos, vel) tuple read in another order than learned_imu's NavState(rot, vel, pos): refused, with the
+    recipe; a NavState with NaN too."""
+    from fusion.initial import first_state
+    from learned_imu.errors import InputError
+
+    pose, vel = first_state(gtsam.NavState(gtsam.Pose3(gtsam.Rot3.Rz(0.3), [1.0, 2.0, 3.0]), [4.0, 5.0, 6.0]), "t")
+    assert np.allclose(pose.translation(), [1, 2, 3]) and np.allclose(vel, [4, 5, 6])
+    with pytest.raises(InputError, match=r"t: initial_state must be a gtsam.NavState, e.g. gtsam.NavState\("):
+        first_state((np.eye(3), np.zeros(3), np.zeros(3)), "t")
+    with pytest.raises(InputError, match="NaN"):
+        first_state(gtsam.NavState(gtsam.Pose3(), [np.nan, 0.0, 0.0]), "t")

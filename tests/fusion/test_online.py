@@ -55,7 +55,7 @@ def small_model() -> AirImuNet:
 
 
 def first_state(seq):
-    return seq.gt.rot[0], seq.gt.pos[0], seq.gt.vel[0]
+    return gtsam.NavState(gtsam.Pose3(gtsam.Rot3(seq.gt.rot[0]), seq.gt.pos[0]), seq.gt.vel[0])
 
 
 def batch_solution(seq, model, gps: Gps, tmp_path) -> tuple[Solution, float]:

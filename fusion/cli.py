@@ -123,7 +123,6 @@ def fuse(
     from pathlib import Path
 
     from fusion.fuse import BiasStates, fuse, read_gps_csv, write_outputs
-    from learned_imu.datasets.sequence import GpsFixes
 
     if gps_every < 1:
         raise typer.BadParameter(f"--gps-every must be >= 1, got {gps_every}")
@@ -143,7 +142,7 @@ def fuse(
     fixes = read_gps_csv(gps, gps_sigma) if gps else sequence.gps
     if fixes is None:
         raise typer.BadParameter(f"{path}: the log has no GPS fixes; pass --gps FILE")
-    used = GpsFixes(fixes.t[::gps_every], fixes.pos[::gps_every], fixes.sigma[::gps_every])
+    used = fixes[::gps_every]
     model = None
     if checkpoint:
         from learned_imu.network.checkpoint import model_from_checkpoint

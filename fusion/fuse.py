@@ -71,7 +71,7 @@ def fuse(
     fixes = gps if gps is not None else sequence.gps
     if fixes is None or len(fixes.t) < 2:
         raise DataError(sequence.source or sequence.name, "gps", "fusing needs at least two GPS fixes")
-    sequence = dataclasses.replace(sequence, gps=GpsFixes(fixes.t, fixes.pos, fixes.sigma))
+    sequence = dataclasses.replace(sequence, gps=fixes)
     inside = (fixes.t >= sequence.t[0]) & (fixes.t <= sequence.t[-1])
     if inside.sum() < 2:
         raise DataError(sequence.source or sequence.name, "gps", "fewer than two fixes lie within the IMU's time span")
@@ -96,7 +96,7 @@ def fuse(
             correction.gyro.numpy(), correction.acc.numpy(),
         )  # fmt: skip
         export = load_export(path)
-        used = Gps(sequence.gps.t, sequence.gps.pos, sequence.gps.sigma)
+        used = sequence.gps
         graph, values = build_graph(export, used, settings, bias=bias)
         solution = solve(graph, values, export.keyframe_t, settings)
     return Fused(solution, correction, used, sequence)

@@ -46,20 +46,16 @@ from fusion.initial import (
     sequential_initial_values,
 )
 from learned_imu.datasets._rotations import matrix_to_quat_wxyz
+from learned_imu.datasets.sequence import GpsFixes
 from learned_imu.errors import ConfigError, InputError
 from learned_imu.io import atomic_file
 
 X, V, B = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V, gtsam.symbol_shorthand.B
 
 
-@dataclass(frozen=True)
-class Gps:
-    """GPS fixes on the IMU clock: ``t`` (M,) s, ``pos`` (M, 3) antenna position in the world frame, m, and
-    ``sigma`` (M, 3) one-sigma noise per axis, m (a standard deviation, not a variance)."""
-
-    t: np.ndarray
-    pos: np.ndarray
-    sigma: np.ndarray
+# GPS fixes on the IMU clock (t (M,) s, pos (M, 3) world frame m, sigma (M, 3) one-sigma m): one record with the
+# readers' (learned_imu.datasets.sequence.GpsFixes); ``Gps`` is fusion's name for it
+Gps = GpsFixes
 
 
 @dataclass(frozen=True)

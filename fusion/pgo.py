@@ -38,7 +38,7 @@ import numpy as np
 from factors import load_export
 from fusion.graph import BiasStates, FusionSettings, Gps, Solution, build_graph, solve, with_marginals
 from learned_imu.config import check_noise_density, load_config
-from learned_imu.datasets.sequence import GpsFixes, ImuSequence, gap_indices
+from learned_imu.datasets.sequence import ImuSequence, gap_indices
 from learned_imu.errors import ConfigError, InputError
 from learned_imu.evaluation.evaluate import dead_reckoning
 from learned_imu.export import export_preintegration, keyframes_every, nearest_samples
@@ -221,11 +221,11 @@ def gps_for(sequence: ImuSequence, rate_hz: float, sigma_m: float, seed: int, so
     fixes = sequence.gps
     step = recorded_phases(sequence, rate_hz)
     keep = np.arange(seed % step, len(fixes.t), step)
-    truth = Gps(fixes.t, fixes.pos, fixes.sigma)
+    truth = fixes
     if sequence.gt is not None:
         valid = sequence.gt.valid
         truth = Gps(sequence.t[valid], sequence.gt.pos[valid], np.zeros((int(valid.sum()), 3)))
-    return Gps(fixes.t[keep], fixes.pos[keep], fixes.sigma[keep]), truth
+    return fixes[keep], truth
 
 
 def fixes_on_samples(sequence: ImuSequence) -> ImuSequence:
@@ -238,8 +238,7 @@ def fixes_on_samples(sequence: ImuSequence) -> ImuSequence:
         log.warning("%s: %d of %d GPS fixes lie in gaps of the IMU and are not used", sequence.name,
                     int((~on_sample).sum()), on_sample.size)  # fmt: skip
     fixes = sequence.gps
-    gps = GpsFixes(fixes.t[on_sample], fixes.pos[on_sample], fixes.sigma[on_sample])
-    return dataclasses.replace(sequence, gps=gps)
+    return dataclasses.replace(sequence, gps=fixes[on_sample])
 
 
 def recorded_phases(sequence: ImuSequence, rate_hz: float) -> int:

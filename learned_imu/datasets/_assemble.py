@@ -230,7 +230,7 @@ def _make(name, source, t, gyro, acc, gravity, truth, gps, part: slice) -> ImuSe
         truth = GroundTruth(truth.rot[part], truth.pos[part], truth.vel[part], truth.valid[part])
     if gps is not None:
         inside = (gps.t >= t[0]) & (gps.t <= t[-1])
-        gps = GpsFixes(gps.t[inside], gps.pos[inside], gps.sigma[inside])
+        gps = gps[inside]
     return ImuSequence(
         name=name, t=t, gyro=gyro[part], acc=acc[part], gravity=gravity.copy(), gt=truth, gps=gps, source=str(source)
     )

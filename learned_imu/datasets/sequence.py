@@ -67,6 +67,13 @@ class GpsFixes:
     pos: np.ndarray
     sigma: np.ndarray
 
+    def __getitem__(self, index) -> GpsFixes:
+        """The fixes at ``index`` (a slice, boolean mask or index array)."""
+        return GpsFixes(self.t[index], self.pos[index], self.sigma[index])
+
+    def __len__(self) -> int:
+        return len(self.t)
+
 
 @dataclass(frozen=True, eq=False)
 class ImuSequence:
@@ -141,7 +148,7 @@ class ImuSequence:
         gps = None
         if self.gps is not None:
             inside = (self.gps.t >= self.t[first]) & (self.gps.t <= self.t[last - 1])
-            gps = GpsFixes(self.gps.t[inside], self.gps.pos[inside], self.gps.sigma[inside])
+            gps = self.gps[inside]
         return ImuSequence(
             f"{self.name}[{start:g}:{stop:g}]", self.t[cut], self.gyro[cut], self.acc[cut], self.gravity, gt, gps,
             self.source,

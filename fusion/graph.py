@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import gtsam
 import numpy as np
@@ -62,8 +63,8 @@ Gps = GpsFixes
 class FusionSettings:
     """Graph and solver options (``configs/pgo_*.yaml``'s ``fusion`` block)."""
 
-    backend: str = "gtsam"  # "gtsam" (C++ ImuFactor) or "custom" (factors.LearnedImuFactor)
-    gps_robust: str | None = None  # None, "huber" or "cauchy"
+    backend: Literal["gtsam", "custom"] = "gtsam"  # C++ ImuFactor, or factors.LearnedImuFactor
+    gps_robust: Literal["huber", "cauchy"] | None = None  # robust loss of the GPS factors; None: Gaussian
     lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # antenna in the IMU frame
     prior_rot_sigma_rad: float = 0.01
     prior_pos_sigma_m: float = 0.1
@@ -85,6 +86,10 @@ class FusionSettings:
         for key in ("max_iterations", "init_window"):
             if getattr(self, key) < 1:
                 raise ConfigError(f"fusion.{key} must be a whole number >= 1, got {getattr(self, key)!r}")
+        if self.backend not in ("gtsam", "custom"):
+            raise ConfigError(f"fusion.backend must be one of gtsam, custom, got {self.backend!r}")
+        if self.gps_robust not in (None, "huber", "cauchy"):
+            raise ConfigError(f"fusion.gps_robust must be null, huber or cauchy, got {self.gps_robust!r}")
         if len(self.lever_arm_m) != 3 or not all(np.isfinite(self.lever_arm_m)):
             raise ConfigError(f"fusion.lever_arm_m must be 3 finite numbers (m), got {list(self.lever_arm_m)!r}")
 

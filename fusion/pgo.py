@@ -28,10 +28,11 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import typing
 import weakref
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
@@ -51,9 +52,10 @@ if TYPE_CHECKING:
     from fusion.config import PgoConfig
 
 log = logging.getLogger(__name__)
-SCORE_SPANS = ("keyframes", "gps")
-GPS_SOURCES = ("auto", "simulated", "recorded")
-KEYFRAMES = ("interval", "fixes")
+ScoreSpan = Literal["keyframes", "gps"]
+GpsSource = Literal["auto", "simulated", "recorded"]
+Keyframes = Literal["interval", "fixes"]
+SCORE_SPANS, GPS_SOURCES, KEYFRAMES = (typing.get_args(t) for t in (ScoreSpan, GpsSource, Keyframes))
 
 
 @dataclass(frozen=True)
@@ -114,13 +116,13 @@ class PgoOptions:
     fixed_acc_noise_density: float = 0.08
     # where ATE is scored: "keyframes" (the whole keyframe span) or "gps" (from the first to the last fused fix:
     # past the last fix the graph dead-reckons, and how far depends on where the fixes fall, not on the setting)
-    score_span: str = "keyframes"
+    score_span: ScoreSpan = "keyframes"
     # "simulated" (from the ground truth), "recorded" (the sequence's own fixes) or "auto" (simulated where there is
     # ground truth, else recorded)
-    gps_source: str = "auto"
+    gps_source: GpsSource = "auto"
     # "interval": a keyframe every keyframe_interval_s; "fixes": one at the sample of every recorded fix (within half
     # a sample period; fixes inside a gap of the IMU are not used), so that each fused fix has its keyframe
-    keyframes: str = "interval"
+    keyframes: Keyframes = "interval"
     gtsam_example: bool = False  # add the GTSAM_EXAMPLE row
     # with bias states (fusion.graph.BiasStates: per-sample random walk and prior sigmas): each of the four settings
     # also runs with a bias state per keyframe, as a row "<setting> + bias states"

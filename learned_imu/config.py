@@ -18,14 +18,16 @@ import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import yaml
 
 from learned_imu.errors import ConfigError
 
-DEVICES = ("cpu", "cuda", "auto")
-INTERVAL_UNITS = ("s", "frames")  # learned_imu.evaluation.evaluate's
+Device = Literal["cpu", "cuda", "auto"]
+IntervalUnit = Literal["s", "frames"]  # learned_imu.evaluation.evaluate's
+DEVICES = typing.get_args(Device)
+INTERVAL_UNITS = typing.get_args(IntervalUnit)
 
 
 def _check(record, key: str, ok, expected: str) -> None:
@@ -154,11 +156,10 @@ class TrainConfig:
     seed: int = 0
     # where model, windows and preintegration live while training: cpu, cuda (an error without one) or auto
     # (cuda when torch sees one); checkpoints are read back on the CPU either way
-    device: str = "cpu"
+    device: Device = "cpu"
 
     def __post_init__(self):
-        if self.device not in DEVICES:
-            raise ConfigError(f"train.device must be one of {', '.join(DEVICES)}, got {self.device!r}")
+        _check(self, "train.device", lambda v: v in DEVICES, f"one of {', '.join(DEVICES)}")
         _check(self, "train.window", lambda v: v >= 2, "at least 2 samples")
         _check(self, "train.every", lambda v: 1 <= v <= self.window, f"in [1, train.window = {self.window}]")
         for key in ("stride", "context", "plateau_patience", "early_stop_patience", "calibration_steps"):
@@ -177,7 +178,7 @@ class EvaluationConfig:
     the short interval of the paper's 10-frame table, in IMU samples (0 = not scored)."""
 
     interval: float = 1.0
-    interval_unit: str = "s"
+    interval_unit: IntervalUnit = "s"
     frames: int = 10
 
     def __post_init__(self):
@@ -350,6 +351,10 @@ def _convert(hint, value, source: str, key: str):
         if value is None and type(None) in args:
             return None
         return _convert(next(a for a in args if a is not type(None)), value, source, key)
+    if origin is Literal:  # one of a fixed set of values
+        if value in args:
+            return value
+        raise ConfigError(f"{source}: key '{key}': expected one of {', '.join(map(str, args))}, got {value!r}")
     if hint is Any:
         return value
     if hint is float and isinstance(value, int | float) and not isinstance(value, bool):

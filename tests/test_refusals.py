@@ -395,3 +395,30 @@ def test_a_remove_gravity_model_on_data_without_ground_truth(flight):
     with pytest.raises(InputError, match="removes gravity with ground truth; the sequence has none"):
         correct(model, blind, remove_gravity=True)
     assert correct(model, blind).gyro.shape == flight.gyro.shape  # the same model without it runs
+
+
+LITERAL_CASES = {
+    "train.device": ("train: {device: gpu}", "expected one of cpu, cuda, auto"),
+    "evaluation.interval_unit": ("evaluation: {interval_unit: minutes}", "expected one of s, frames"),
+}
+
+
+@pytest.mark.parametrize("key", sorted(LITERAL_CASES))
+def test_fixed_choices_in_configs_are_literal_types(key, tmp_path):
+    """Config fields with a fixed set of values are typed ``Literal[...]``: the loader names the key and the set."""
+    body, message = LITERAL_CASES[key]
+    path = tmp_path / "bad.yaml"
+    path.write_text(f"name: x\ndata: {{train: [{{dataset: simulator}}], val: [{{dataset: simulator}}]}}\n{body}\n")
+    with pytest.raises(ConfigError, match=rf"key '{key}': {message}"):
+        load_config(path)
+
+
+def test_pgo_and_fusion_choices_are_literal_types(tmp_path):
+    from fusion.config import load_pgo_config
+
+    for block, key, message in (("options: {gps_source: radio}", "options.gps_source", "auto, simulated, recorded"),
+                                ("fusion: {backend: ceres}", "fusion.backend", "gtsam, custom")):  # fmt: skip
+        path = tmp_path / "pgo.yaml"
+        path.write_text(f"name: p\nexperiment: demo.yaml\nrun: r\n{block}\n")
+        with pytest.raises(ConfigError, match=rf"key '{key}': expected one of {message}"):
+            load_pgo_config(path)

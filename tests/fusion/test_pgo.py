@@ -109,5 +109,5 @@ def test_ate_can_be_scored_between_the_first_and_last_fused_fix(tmp_path):
     from fusion.config import load_pgo_config
     from learned_imu.errors import ConfigError
 
-    with pytest.raises(ConfigError, match=r"pgo\.yaml.*options.*score_span must be one of keyframes, gps"):
+    with pytest.raises(ConfigError, match=r"pgo\.yaml.*options.*score_span.: expected one of keyframes, gps"):
         load_pgo_config(bad)

@@ -160,7 +160,7 @@ def test_a_variance_given_as_a_noise_density_sigma_is_refused(tmp_path):
         ("train: {plateau_factor: 1.0}\n", r"train.plateau_factor must be in \(0, 1\)"),
         ("model: {dropout: 1.5}\n", r"model.dropout must be in \[0, 1\)"),
         ("evaluation: {interval: 0}\n", r"evaluation.interval must be a positive number"),
-        ("evaluation: {interval_unit: minutes}\n", r"evaluation.interval_unit must be one of s, frames"),
+        ("evaluation: {interval_unit: minutes}\n", r"key .evaluation.interval_unit.: expected one of s, frames"),
         ("loss: {huber_delta: -1}\n", r"loss.huber_delta must be a positive number"),
     ],
 )

@@ -30,6 +30,8 @@ from __future__ import annotations
 
 import os
 import re
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -107,11 +109,7 @@ def write_recording(
     """Write an ``.rrd`` (atomically). ``fused``: solved trajectories (with ``pos_cov`` for ellipsoids and
     bounds); ``truth`` scores them; ``dead_reckoning``: raw/AirIMU integration; ``gps`` = (t (M,), pos (M, 3))."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")  # rerun writes the file; rename when complete
-    try:
-        rec = rr.RecordingStream(application)
-        rec.save(str(tmp))
+    with _saved(path, rr.RecordingStream(application)) as rec:
         plots = _Plots()
         names = [t.name for t in fused]
         palette = colors.setting_colors(names + [t.name for t in dead_reckoning])
@@ -121,11 +119,6 @@ def write_recording(
             _log_imu(rec, imu, plots)
         scene = truth.pos if truth is not None else (fused[0].pos if fused else np.zeros((1, 3)))
         rec.send_blueprint(_blueprint(fused, colors.headline(names), plots, _eye(scene)), make_active=True)
-        rec.flush()
-        rec.disconnect()
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
     return path
 
 
@@ -306,12 +299,9 @@ def write_training_recording(folder: str | Path, history: list[dict]) -> Path:
     opens it, resumed runs included; ``learned_imu.training.experiment.train_run(on_epoch=...)`` calls it after each
     epoch."""
     path = Path(folder) / "training.rrd"
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     epochs = np.array([entry["epoch"] + 1 for entry in history], dtype=np.int64)
     views = []
-    try:
-        rec = rr.RecordingStream("airimu-training", recording_id=str(Path(folder).resolve()))
-        rec.save(str(tmp))
+    with _saved(path, rr.RecordingStream("airimu-training", recording_id=str(Path(folder).resolve()))) as rec:
         for entity, keys, names, rgb, title, corner in TRAINING_SERIES:
             if not history or not all(key in history[0] for key in keys):
                 continue
@@ -328,12 +318,23 @@ def write_training_recording(folder: str | Path, history: list[dict]) -> Path:
                   rrb.TimePanel(state="collapsed", timeline="epoch"))  # fmt: skip
         blueprint = rrb.Blueprint(rrb.Grid(*views), *panels, auto_views=False)
         rec.send_blueprint(blueprint, make_active=True)
+    return path
+
+
+@contextmanager
+def _saved(path: Path, rec: rr.RecordingStream) -> Iterator[rr.RecordingStream]:
+    """``rec`` saving to a temporary file beside ``path``, renamed to ``path`` once everything is logged (rerun
+    writes the file itself, so ``learned_imu.io.atomic_file`` cannot be used); removed on error."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        rec.save(str(tmp))
+        yield rec
         rec.flush()
         rec.disconnect()
         tmp.replace(path)
     finally:
         tmp.unlink(missing_ok=True)
-    return path
 
 
 def _at(track: Track, t: np.ndarray) -> np.ndarray:

@@ -1,7 +1,7 @@
 """factors: GTSAM factors for learned IMU preintegration and GPS (gtsam + numpy; never imports torch)."""
 
 from factors.checks import GraphError, check_anchored, check_values, solve_or_explain
-from factors.export_file import Export, ExportError, from_export, load_export
+from factors.export_file import Export, ExportError, ExportTruth, from_export, load_export
 from factors.gps import GpsFactor, gps_noise
 from factors.imu import LearnedImuFactor
 from factors.learned_pim import learned_combined_pim, learned_pim
@@ -10,6 +10,7 @@ from factors.pim_from_deltas import PimLayoutError, pim_from_deltas  # the funct
 __all__ = [
     "Export",
     "ExportError",
+    "ExportTruth",
     "GpsFactor",
     "GraphError",
     "LearnedImuFactor",

@@ -25,8 +25,21 @@ class ExportError(ValueError):
 
 
 @dataclass(frozen=True, eq=False)
+class ExportTruth:
+    """An export's ground truth at its N samples: ``rot`` (N, 3, 3) world <- IMU, ``pos`` (N, 3) m, ``vel`` (N, 3)
+    m/s (world frame), ``valid`` (N,) bool."""
+
+    rot: np.ndarray
+    pos: np.ndarray
+    vel: np.ndarray
+    valid: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
 class Export:
-    """A loaded export; see ``learned_imu.export`` for every field's shape, unit and frame."""
+    """A loaded export; see ``learned_imu.export`` for every field's shape, unit and frame. Per sample (N): ``t`` s,
+    ``gyro`` rad/s, ``acc`` m/s^2 (IMU frame; the corrected samples when a model ran), ``gyro_cov`` rad^2/s and
+    ``acc_cov`` m^2/s^3 (sigma^2 densities); ``truth`` when the file has ground truth."""
 
     path: Path
     name: str
@@ -39,7 +52,13 @@ class Export:
     delta_dt: np.ndarray
     delta_cov: np.ndarray
     bias_jacobian: np.ndarray
-    arrays: dict  # every array of the file, including per-sample data and ground truth when present
+    t: np.ndarray
+    gyro: np.ndarray
+    acc: np.ndarray
+    gyro_cov: np.ndarray
+    acc_cov: np.ndarray
+    truth: ExportTruth | None
+    arrays: dict  # every array of the file as read (the fields above are the typed view)
 
 
 _SHAPES = {  # field -> shape with "N" samples, "K" keyframes, "I" intervals
@@ -92,8 +111,25 @@ def load_export(path: str | Path) -> Export:
         path=path,
         name=str(arrays.get("name", path.stem)),
         arrays=arrays,
+        truth=_truth(path, arrays, sizes["N"]),
         **{field: arrays[field] for field in Export.__dataclass_fields__ if field in _SHAPES},
     )
+
+
+_TRUTH_SHAPES = {"gt_rot": (3, 3), "gt_pos": (3,), "gt_vel": (3,), "gt_valid": ()}  # per sample
+
+
+def _truth(path: Path, arrays: dict, n: int) -> ExportTruth | None:
+    """The ground truth of the file, all four fields or none; shapes checked (NaN allowed where not valid)."""
+    present = [field for field in _TRUTH_SHAPES if field in arrays]
+    if not present:
+        return None
+    for field, shape in _TRUTH_SHAPES.items():
+        if field not in arrays:
+            raise ExportError(f"{path}: field '{field}' is missing (the file has {', '.join(present)})")
+        if arrays[field].shape != (n, *shape):
+            raise ExportError(f"{path}: field '{field}' has shape {arrays[field].shape}, expected {(n, *shape)}")
+    return ExportTruth(arrays["gt_rot"], arrays["gt_pos"], arrays["gt_vel"], arrays["gt_valid"].astype(bool))
 
 
 def _check_consistent(path: Path, arrays: dict, n: int) -> None:
@@ -213,14 +249,13 @@ def _from_samples(export: Export, pose_key, vel_key, bias_key, factor: str, para
     """Factors from the export's per-sample data through GTSAM's own preintegration (``factors.learned_pim``)."""
     from factors.learned_pim import learned_combined_pim, learned_pim
 
-    a = export.arrays
-    dt = np.diff(a["t"])
+    dt = np.diff(export.t)
     index = export.keyframe_index
     out = []
     for k in range(len(index) - 1):
         take = slice(int(index[k]), int(index[k + 1]))
         around = bias(k) if callable(bias) else bias
-        samples = (a["gyro"][take], a["acc"][take], dt[take], a["gyro_cov"][take], a["acc_cov"][take])
+        samples = (export.gyro[take], export.acc[take], dt[take], export.gyro_cov[take], export.acc_cov[take])
         keys = (pose_key(k), vel_key(k), pose_key(k + 1), vel_key(k + 1))
         if factor == "combined":
             pim = learned_combined_pim(*samples, params=params, bias=around)

@@ -279,7 +279,7 @@ def _with_bias_states(values: gtsam.Values, export: Export, bias: BiasStates, ba
     zero = gtsam.imuBias.ConstantBias()
     samples = np.diff(export.keyframe_index)
     if bias.factor == "combined":
-        dt = float(np.median(np.diff(export.arrays["t"])))
+        dt = float(np.median(np.diff(export.t)))
         params = gtsam.PreintegrationCombinedParams(export.gravity)
         params.setIntegrationCovariance(np.zeros((3, 3)))
         params.setBiasAccCovariance(np.eye(3) * bias.acc_walk_sigma**2 / dt)

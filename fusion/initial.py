@@ -45,11 +45,10 @@ def known_first_state(export: Export, initial_state) -> tuple[gtsam.Pose3, np.nd
     keyframe, else None."""
     if initial_state is not None:
         return first_state(initial_state, "build_graph")
-    if "gt_rot" not in export.arrays:
+    if export.truth is None:
         return None
-    first = int(export.keyframe_index[0])
-    a = export.arrays
-    return gtsam.Pose3(gtsam.Rot3(a["gt_rot"][first]), a["gt_pos"][first]), np.asarray(a["gt_vel"][first], float)
+    first, truth = int(export.keyframe_index[0]), export.truth
+    return gtsam.Pose3(gtsam.Rot3(truth.rot[first]), truth.pos[first]), np.asarray(truth.vel[first], float)
 
 
 def aligned_first_state(export: Export, times, gps, imu_factors, gps_factors, settings):

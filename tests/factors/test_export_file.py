@@ -113,3 +113,13 @@ def test_corrupt_or_pickled_files_are_refused(exported, tmp_path):
         load_export(pickled)
     with pytest.raises(ExportError, match="file not found"):
         load_export(tmp_path / "missing.npz")
+
+
+def test_ground_truth_is_a_typed_field_all_or_nothing(exported, sequence, tmp_path):
+    export = load_export(exported)
+    np.testing.assert_array_equal(export.truth.pos, sequence.gt.pos)
+    assert export.truth.valid.dtype == bool and export.t.shape == (len(sequence),)
+    with pytest.raises(ExportError, match="'gt_vel' is missing"):
+        load_export(_rewrite(exported, tmp_path / "part.npz", gt_vel=None))
+    assert load_export(_rewrite(exported, tmp_path / "none.npz", gt_rot=None, gt_pos=None, gt_vel=None,
+                                gt_valid=None)).truth is None  # fmt: skip

@@ -115,15 +115,15 @@ def test_train_then_evaluate_and_export_with_the_checkpoint(shared_data, tmp_pat
     result = CliRunner().invoke(app, ["export", *where, "--keyframes", "0.5s", "--out", str(npz)])
     assert result.exit_code == 0, result.output
     export = load_export(npz)
-    np.testing.assert_allclose(export.arrays["gyro"], corrected.gyro.numpy())
-    np.testing.assert_allclose(export.arrays["gyro_cov"], corrected.gyro_cov.numpy())
-    assert export.arrays["keyframe_index"][1] == 100  # 0.5 s at 200 Hz
+    np.testing.assert_allclose(export.gyro, corrected.gyro.numpy())
+    np.testing.assert_allclose(export.gyro_cov, corrected.gyro_cov.numpy())
+    assert export.keyframe_index[1] == 100  # 0.5 s at 200 Hz
 
     times = tmp_path / "times.txt"
     times.write_text("# keyframe times, s\n" + "\n".join(str(t) for t in sequence.t[[0, 250, 900]]))
     result = CliRunner().invoke(app, ["export", *where, "--keyframes", str(times), "--out", str(npz)])
     assert result.exit_code == 0, result.output
-    assert load_export(npz).arrays["keyframe_index"].tolist() == [0, 250, 900]
+    assert load_export(npz).keyframe_index.tolist() == [0, 250, 900]
 
     # scale the noise on a held-out sequence: densities scaled exactly, scales kept; a second pass on the same
     # sequence finds nothing left to scale (the fit is at its optimum) and keeps the product

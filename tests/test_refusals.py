@@ -180,14 +180,21 @@ OPTION_CASES = {
 }
 
 
+def refused_config(folder: Path, text: str, message: str) -> str:
+    """The ConfigError of loading ``text`` as a config file (it must match ``message`` and name the file)."""
+    path = folder / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=message) as error:
+        load_config(path)
+    assert str(path) in str(error.value)
+    return str(error.value)
+
+
 @pytest.mark.parametrize("case", sorted(OPTION_CASES))
 def test_sequence_options_are_checked_against_the_signature(case, tmp_path):
     spec, message = OPTION_CASES[case]
-    path = tmp_path / "bad.yaml"
-    path.write_text(f"name: x\ndata:\n  train: [{spec}]\n  val: [{{dataset: simulator}}]\n")
-    with pytest.raises(ConfigError, match=message) as error:
-        load_config(path)
-    assert str(path) in str(error.value) and "data.train[0]" in str(error.value)
+    text = f"name: x\ndata:\n  train: [{spec}]\n  val: [{{dataset: simulator}}]\n"
+    assert "data.train[0]" in refused_config(tmp_path, text, message)
 
 
 NON_POSITIVE = st.one_of(st.floats(max_value=0.0), st.sampled_from([float("nan"), float("inf"), -float("inf")]))
@@ -407,10 +414,8 @@ LITERAL_CASES = {
 def test_fixed_choices_in_configs_are_literal_types(key, tmp_path):
     """Config fields with a fixed set of values are typed ``Literal[...]``: the loader names the key and the set."""
     body, message = LITERAL_CASES[key]
-    path = tmp_path / "bad.yaml"
-    path.write_text(f"name: x\ndata: {{train: [{{dataset: simulator}}], val: [{{dataset: simulator}}]}}\n{body}\n")
-    with pytest.raises(ConfigError, match=rf"key '{key}': {message}"):
-        load_config(path)
+    text = f"name: x\ndata: {{train: [{{dataset: simulator}}], val: [{{dataset: simulator}}]}}\n{body}\n"
+    refused_config(tmp_path, text, rf"key '{key}': {message}")
 
 
 def test_pgo_and_fusion_choices_are_literal_types(tmp_path):

@@ -455,14 +455,12 @@ def export(
     if checkpoint:
         from learned_imu.network.inference import correct_from_checkpoint
 
-        c = correct_from_checkpoint(checkpoint, sequence)
-        arrays = (c.gyro_cov.numpy(), c.acc_cov.numpy(), c.gyro.numpy(), c.acc.numpy())
+        written = export_preintegration(out, sequence, index, correction=correct_from_checkpoint(checkpoint, sequence))
     else:
         if gyro_noise_density is None or acc_noise_density is None:
             raise typer.BadParameter("without --checkpoint, give --gyro-noise-density and --acc-noise-density")
         _check_noise_flags(gyro_noise_density, acc_noise_density)
-        arrays = (gyro_noise_density**2, acc_noise_density**2, None, None)
-    written = export_preintegration(out, sequence, index, *arrays)
+        written = export_preintegration(out, sequence, index, gyro_noise_density**2, acc_noise_density**2)
     Console().print(f"{len(index) - 1} keyframe intervals of {sequence.name} written to {written}")
 
 

@@ -91,10 +91,7 @@ def fuse(
         correction = Correction(gyro, acc, zero, zero, gyro_cov, acc_cov)
     blind = dataclasses.replace(sequence, gt=None)  # the first state from the GPS track, not from ground truth
     with tempfile.TemporaryDirectory() as folder:
-        path = export_preintegration(
-            Path(folder) / "fuse.npz", blind, index, correction.gyro_cov.numpy(), correction.acc_cov.numpy(),
-            correction.gyro.numpy(), correction.acc.numpy(),
-        )  # fmt: skip
+        path = export_preintegration(Path(folder) / "fuse.npz", blind, index, correction=correction)
         export = load_export(path)
         used = sequence.gps
         graph, values = build_graph(export, used, settings, bias=bias)

@@ -25,6 +25,7 @@ from learned_imu.datasets.sequence import ImuSequence
 from learned_imu.errors import DataError, InputError
 from learned_imu.geometry.preintegration import preintegrate
 from learned_imu.io import atomic_file
+from learned_imu.network.model import Correction
 
 FORMAT_VERSION = 1
 SAMPLES_PER_CALL = 100_000  # samples preintegrated per batched call (about 0.5 GB of float64 intermediates)
@@ -40,16 +41,27 @@ def export_preintegration(
     path: str | Path,
     sequence: ImuSequence,
     keyframe_index: np.ndarray,
-    gyro_cov,
-    acc_cov,
+    gyro_cov=None,
+    acc_cov=None,
     gyro: np.ndarray | None = None,
     acc: np.ndarray | None = None,
+    *,
+    correction: Correction | None = None,
 ) -> Path:
     """Preintegrate ``sequence`` between keyframes and write the export (see the module docstring).
 
-    ``gyro``/``acc`` (N, 3) replace the raw samples (a model's corrected output); ``gyro_cov``/``acc_cov`` are
-    densities, (3,) or per sample (N, 3). Intervals of equal length are integrated in one batched call.
+    ``correction``: a model's output for the sequence (``learned_imu.network.inference.correct``): its corrected
+    samples and per-sample densities are exported. Without it: ``gyro``/``acc`` (N, 3) replace the raw samples and
+    ``gyro_cov``/``acc_cov`` are densities (sigma^2), (3,) or per sample (N, 3). Intervals of equal length are
+    integrated in one batched call.
     """
+    if correction is not None:
+        if any(x is not None for x in (gyro_cov, acc_cov, gyro, acc)):
+            raise InputError("export: give a correction or samples and densities, not both")
+        gyro, acc = correction.gyro.double().cpu().numpy(), correction.acc.double().cpu().numpy()
+        gyro_cov, acc_cov = correction.gyro_cov.double().cpu().numpy(), correction.acc_cov.double().cpu().numpy()
+    if gyro_cov is None or acc_cov is None:
+        raise InputError("export: give the noise densities (gyro_cov, acc_cov) or a correction")
     n = len(sequence)
     keyframe_index = np.asarray(keyframe_index, dtype=np.int64)
     if keyframe_index.ndim != 1 or len(keyframe_index) < 2 or np.any(np.diff(keyframe_index) <= 0):

@@ -123,3 +123,22 @@ def test_ground_truth_is_a_typed_field_all_or_nothing(exported, sequence, tmp_pa
         load_export(_rewrite(exported, tmp_path / "part.npz", gt_vel=None))
     assert load_export(_rewrite(exported, tmp_path / "none.npz", gt_rot=None, gt_pos=None, gt_vel=None,
                                 gt_valid=None)).truth is None  # fmt: skip
+
+
+def test_the_export_takes_a_correction(sequence, tmp_path):
+    """A model's ``Correction`` exports its corrected samples and per-sample densities, exactly as the arrays do."""
+    from learned_imu.errors import InputError
+    from learned_imu.network.model import Correction
+
+    rng = np.random.default_rng(5)
+    gyro, acc = sequence.gyro + rng.normal(0, 1e-3, sequence.gyro.shape), sequence.acc + 0.01
+    gyro_cov, acc_cov = np.full_like(gyro, 2e-8), rng.uniform(1e-6, 4e-6, acc.shape)
+    correction = Correction(*(torch.as_tensor(x) for x in (gyro, acc, gyro - sequence.gyro, acc - sequence.acc,
+                                                              gyro_cov, acc_cov)))  # fmt: skip
+    index = keyframes_every(sequence, 0.5)
+    by_record = load_export(export_preintegration(tmp_path / "c.npz", sequence, index, correction=correction))
+    by_arrays = load_export(export_preintegration(tmp_path / "a.npz", sequence, index, gyro_cov, acc_cov, gyro, acc))
+    for field in ("delta_rot", "delta_pos", "delta_cov", "gyro", "acc_cov"):
+        np.testing.assert_array_equal(getattr(by_record, field), getattr(by_arrays, field))
+    with pytest.raises(InputError, match="not both"):
+        export_preintegration(tmp_path / "x.npz", sequence, index, 1e-6, 1e-4, correction=correction)

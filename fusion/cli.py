@@ -191,10 +191,7 @@ def _read_with_options(dataset: str, path: str, options: list[str], imu_file: st
             parsed[key] = yaml.safe_load(text)
         except yaml.YAMLError:
             parsed[key] = text
-    sequence = read_sequence(dataset, path, **parsed)
-    if isinstance(sequence, list):
-        raise typer.BadParameter(f"{path}: the reader split the sequence at gaps; pass on_gap=keep")
-    return sequence
+    return read_sequence(dataset, path, **parsed)
 
 
 @app.command()

@@ -23,7 +23,7 @@ from learned_imu.datasets.kitti_raw import read_kitti_raw
 from learned_imu.datasets.rosbag import read_rosbag
 from learned_imu.datasets.sequence import ImuSequence
 
-READERS: dict[str, Callable[..., ImuSequence | list[ImuSequence]]] = {
+READERS: dict[str, Callable[..., ImuSequence]] = {
     "euroc": read_euroc,
     "kitti": read_kitti,
     "kitti_raw": read_kitti_raw,
@@ -33,6 +33,7 @@ READERS: dict[str, Callable[..., ImuSequence | list[ImuSequence]]] = {
 }
 
 
+SPLIT = "split"  # a config's on_gap: read with "keep", then ImuSequence.split_at_gaps()
 SIMULATOR = "simulator"  # a config's sequence made by learned_imu.datasets.simulator.simulate instead of a reader
 # Reader and simulator options are a handful of scalars and short lists: anything far larger is a mistake or an
 # attack (YAML aliases nest to ~10^9 elements in a few hundred bytes), refused before it is expanded.
@@ -40,13 +41,14 @@ MAX_OPTION_ITEMS = 1000
 MAX_OPTION_DEPTH = 3
 
 
-def read_sequence(dataset: str, path: str | Path | None = None, **options) -> ImuSequence | list[ImuSequence]:
+def read_sequence(dataset: str, path: str | Path | None = None, **options) -> ImuSequence:
     """Read a sequence with the reader registered as ``dataset`` (a key of ``READERS``).
 
     ``options`` are the reader's keyword arguments (checked by ``check_options``); ``path`` may be None only for
-    ``"kitti"`` (gtsam's copy). A list is returned only when the reader was asked to split at gaps
-    (``on_gap="split"``). A file the reader cannot parse at all (zero bytes, random bytes, another format, no
-    permission) is a ``DataError`` naming it; the parser's own exception is its ``__cause__``.
+    ``"kitti"`` (gtsam's copy). Splitting at gaps is a step of its own: ``on_gap="keep"``, then
+    ``ImuSequence.split_at_gaps()`` (a config's ``on_gap: split`` does both). A file the reader cannot parse at all
+    (zero bytes, random bytes, another format, no permission) is a ``DataError`` naming it; the parser's own
+    exception is its ``__cause__``.
     """
     from learned_imu.errors import AirImuError, DataError, InputError
 
@@ -115,7 +117,7 @@ def _choices() -> dict[str, tuple]:
     from learned_imu.datasets.simulator import GRADES, PROFILES
 
     return {
-        "on_gap": _checks.ON_GAP, "on_duplicate": _checks.ON_DUPLICATE, "on_backward": kitti_raw.ON_BACKWARD,
+        "on_gap": (*_checks.ON_GAP, SPLIT), "on_duplicate": _checks.ON_DUPLICATE, "on_backward": kitti_raw.ON_BACKWARD,
         "gps_frame": kitti_raw.GPS_FRAMES, "stamp": rosbag.STAMPS, "quat_order": _rotations.QUAT_ORDERS,
         "time_unit": tuple(csv.TIME_UNITS), "gyro_unit": tuple(csv.GYRO_UNITS), "acc_unit": tuple(csv.ACC_UNITS),
         "profile": PROFILES, "grade": tuple(GRADES),

@@ -28,7 +28,7 @@ import numpy as np
 from learned_imu.datasets import _checks
 from learned_imu.datasets._rotations import UNIT_NORM_TOL, quat_to_matrix, slerp
 from learned_imu.datasets.sequence import GpsFixes, GroundTruth, ImuSequence
-from learned_imu.errors import DataError
+from learned_imu.errors import DataError, InputError
 
 VEL_WINDOW_S = 0.05  # s; 11 samples at 200 Hz, chosen on EuRoC V1_02 (3.2 mm/s rms vs the file velocity)
 VEL_POLYORDER = 3
@@ -159,20 +159,21 @@ def build_sequence(
     vel_window_s: float = VEL_WINDOW_S,
     line_of: Callable[[int], int | None] | None = None,
     frame_interval_s: float = _checks.GYRO_INTERVAL_S,
-) -> ImuSequence | list[ImuSequence]:
+) -> ImuSequence:
     """Checked sequence(s) from IMU arrays (time stamps already strictly increasing) and optional raw GT.
 
     Args:
         line_of: maps an index of the given arrays to its file line, for error messages.
         on_gap: ``"error"`` (default): an IMU gap longer than ``MAX_GAP_STEPS`` median steps raises;
-            ``"split"``: return a list with one sequence per gap-free run (named ``<name>_part<k>``);
-            ``"keep"``: accept the gaps.
+            ``"keep"``: accept the gaps (``ImuSequence.split_at_gaps`` then splits the sequence if wanted).
         frame_interval_s: the frame self-check's gyro interval (``_checks.frame_score``).
     Returns:
-        One ``ImuSequence``, or a list of them when ``on_gap="split"``.
+        The checked ``ImuSequence``.
     """
+    if on_gap == "split":
+        raise InputError("on_gap='split' is a step of its own: read with on_gap='keep', then .split_at_gaps()")
     if on_gap not in _checks.ON_GAP:
-        raise ValueError(f"on_gap must be one of {_checks.ON_GAP}, got {on_gap!r}")
+        raise InputError(f"on_gap must be one of {_checks.ON_GAP}, got {on_gap!r}")
     line_of = line_of or (lambda row: None)
     gravity = np.asarray(gravity, dtype=np.float64)
     if check_units:
@@ -188,7 +189,8 @@ def build_sequence(
             source,
             "t",
             f"gap of {t[i + 1] - t[i]:.4g} s after t = {float(t[i])!r} ({gaps.size} gap(s) "
-            f"longer than {_checks.MAX_GAP_STEPS:g} median steps); pass on_gap='split' or 'keep'",
+            f"longer than {_checks.MAX_GAP_STEPS:g} median steps); pass on_gap='keep' (then split_at_gaps(), or "
+            "on_gap: split in a config)",
             line=line_of(int(rows[i + 1])),
         )
     truth = resample_ground_truth(t, gt, vel_window_s=vel_window_s) if gt is not None else None
@@ -197,10 +199,7 @@ def build_sequence(
             t, gyro, acc, truth.rot, truth.valid, gravity, source, gt.source, truth.vel, frame_interval_s,
             pos=truth.pos, vel_given=gt.vel is not None,
         )  # fmt: skip
-    if on_gap != "split":
-        return _make(name, source, t, gyro, acc, gravity, truth, gps, slice(None))
-    parts = [s for s in _checks.segments(t) if s.stop - s.start >= 2]
-    return [_make(f"{name}_part{k}", source, t, gyro, acc, gravity, truth, gps, s) for k, s in enumerate(parts)]
+    return _make(name, source, t, gyro, acc, gravity, truth, gps, slice(None))
 
 
 def _overlap_rows(t: np.ndarray, gt: GtSamples, crop: bool) -> np.ndarray:

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from learned_imu.datasets._rotations import matrix_to_quat_wxyz, quat_to_matrix, relative_rotvec
-from learned_imu.datasets.sequence import MAX_GAP_STEPS, gap_indices  # noqa: F401 (re-exported: readers and tests use them)
+from learned_imu.datasets.sequence import MAX_GAP_STEPS, gap_indices, segments  # noqa: F401 (re-exported: readers, tests)
 from learned_imu.errors import DataError
 
 logger = logging.getLogger(__name__)
@@ -34,7 +34,7 @@ STANDARD_GRAVITY = 9.80665  # m/s^2, the "g" of accelerometers that report in g
 DEG = np.pi / 180.0
 # a time step longer than this many median steps is a gap (IMU and ground truth alike)
 ON_DUPLICATE = ("error", "drop")
-ON_GAP = ("error", "split", "keep")
+ON_GAP = ("error", "keep")  # the readers'; a config's on_gap: split reads with keep, then splits
 
 # units check without ground truth (median |acc| is robust to the large accelerations of hand-held trials)
 ACC_IN_G = (0.5, 2.0)  # median |acc| in this range: the file is in g
@@ -95,13 +95,6 @@ def check_timestamps(
             )
         logger.warning("%s: dropping %d samples with duplicated time stamps", source, int(dup.sum()))
     return np.flatnonzero(np.concatenate([[True], ~dup]))
-
-
-def segments(t: np.ndarray, max_gap_steps: float = MAX_GAP_STEPS) -> list[slice]:
-    """Contiguous runs of ``t`` between gaps, as slices."""
-    cuts = gap_indices(t, max_gap_steps) + 1
-    bounds = np.concatenate([[0], cuts, [t.shape[0]]])
-    return [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
 
 
 def check_units(acc: np.ndarray, gyro: np.ndarray, source: object) -> None:

@@ -40,7 +40,7 @@ def read_broad(
     check_frame: bool = True,
     check_units: bool = True,
     vel_window_s: float = VEL_WINDOW_S,
-) -> ImuSequence | list[ImuSequence]:
+) -> ImuSequence:
     """Read one BROAD trial, ``.mat`` or ``.hdf5`` (see the module docstring for units and frames).
 
     Args:

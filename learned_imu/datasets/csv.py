@@ -92,7 +92,7 @@ def read_csv(
     check_frame: bool = True,
     check_units: bool = True,
     vel_window_s: float = VEL_WINDOW_S,
-) -> ImuSequence | list[ImuSequence]:
+) -> ImuSequence:
     """Read an IMU table (see the module docstring for the conventions).
 
     Args:

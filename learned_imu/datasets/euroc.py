@@ -54,7 +54,7 @@ def read_euroc(
     check_frame: bool = True,
     check_units: bool = True,
     vel_window_s: float = VEL_WINDOW_S,
-) -> ImuSequence | list[ImuSequence]:
+) -> ImuSequence:
     """Read one EuRoC / TUM-VI sequence folder (the one holding ``mav0/``).
 
     Args:

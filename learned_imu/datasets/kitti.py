@@ -48,7 +48,7 @@ def read_kitti(
     on_duplicate: str = "error",
     on_gap: str = "error",
     check_units: bool = True,
-) -> ImuSequence | list[ImuSequence]:
+) -> ImuSequence:
     """Read the GTSAM KITTI IMU (+ GPS) example (see the module docstring for units and frames).
 
     Args:

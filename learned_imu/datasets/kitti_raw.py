@@ -24,7 +24,7 @@ Conventions (verified on the 39 shared drives, README "Conventions"):
 KITTI's OXTS stream has timestamp anomalies (README "Caveats": gaps of 70 ms to 1.9 s, backward steps next to
 replayed packets). By default a backward step is an error naming the file and line; ``on_backward="drop"`` drops
 every packet whose stamp is not after the last kept one (the README's rule), ``on_duplicate="drop"`` drops repeated
-stamps, and gaps follow ``on_gap`` (``"split"``: one sequence per gap-free run; ``"keep"``).
+stamps, and gaps follow ``on_gap`` (``"keep"``: accepted; ``ImuSequence.split_at_gaps`` splits).
 
 GPS (``gps_file``): fixes in GTSAM's ``KittiGps_converted.txt`` layout (``Time,X,Y,Z``, on the OXTS clock), e.g.
 GTSAM's 1 Hz fixes of 2011_10_03_drive_0027. GTSAM's conversion put them in a local frame of its own: a per-axis
@@ -77,7 +77,7 @@ def read_kitti_raw(
     gps_file: str | Path | None = None,
     gps_sigma: float = GPS_SIGMA,
     gps_frame: str = "fit",
-) -> ImuSequence | list[ImuSequence]:
+) -> ImuSequence:
     """Read one KITTI raw drive: the shared CSV, or an official drive / ``oxts`` folder (module docstring).
 
     Args:

@@ -60,7 +60,7 @@ def read_rosbag(
     vel_window_s: float = VEL_WINDOW_S,
     gps_topic: str | None = None,
     gps_sigma: float = DEFAULT_GPS_SIGMA_M,
-) -> ImuSequence | list[ImuSequence]:
+) -> ImuSequence:
     """Read IMU (and optional ground truth and GPS) from a bag (see the module docstring for the conventions).
 
     Args:

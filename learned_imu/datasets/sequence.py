@@ -28,6 +28,13 @@ def gap_indices(t: np.ndarray, max_gap_steps: float = MAX_GAP_STEPS) -> np.ndarr
     return np.flatnonzero(steps > max_gap_steps * np.median(steps))
 
 
+def segments(t: np.ndarray, max_gap_steps: float = MAX_GAP_STEPS) -> list[slice]:
+    """Contiguous runs of ``t`` between gaps, as slices."""
+    cuts = gap_indices(t, max_gap_steps) + 1
+    bounds = np.concatenate([[0], cuts, [t.shape[0]]])
+    return [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+
+
 def _check_array(source: object, field: str, value: np.ndarray, shape_tail: tuple[int, ...], n: int | None):
     if not isinstance(value, np.ndarray):
         raise DataError(source, field, f"expected a numpy array, got {type(value).__name__}")
@@ -141,18 +148,22 @@ class ImuSequence:
         first, last = int(round(start * n)), int(round(stop * n))
         if last - first < 2:
             raise InputError(f"{self.name}: part [{start}, {stop}] holds fewer than 2 of its {n} samples")
-        cut = slice(first, last)
+        return self._samples(slice(first, last), f"{self.name}[{start:g}:{stop:g}]")
+
+    def split_at_gaps(self, max_gap_steps: float = MAX_GAP_STEPS) -> list[ImuSequence]:
+        """One sequence per gap-free run (a step longer than ``max_gap_steps`` median steps is a gap; runs of fewer
+        than 2 samples are dropped), named ``NAME_part<k>``: the readers' ``on_gap="keep"`` output, split."""
+        runs = [run for run in segments(self.t, max_gap_steps) if run.stop - run.start >= 2]
+        return [self._samples(run, f"{self.name}_part{k}") for k, run in enumerate(runs)]
+
+    def _samples(self, cut: slice, name: str) -> ImuSequence:
+        """The samples ``cut`` with their ground truth and the GPS fixes inside their time span."""
         gt = None
         if self.gt is not None:
             gt = GroundTruth(self.gt.rot[cut], self.gt.pos[cut], self.gt.vel[cut], self.gt.valid[cut])
-        gps = None
-        if self.gps is not None:
-            inside = (self.gps.t >= self.t[first]) & (self.gps.t <= self.t[last - 1])
-            gps = self.gps[inside]
-        return ImuSequence(
-            f"{self.name}[{start:g}:{stop:g}]", self.t[cut], self.gyro[cut], self.acc[cut], self.gravity, gt, gps,
-            self.source,
-        )  # fmt: skip
+        t = self.t[cut]
+        gps = None if self.gps is None else self.gps[(self.gps.t >= t[0]) & (self.gps.t <= t[-1])]
+        return ImuSequence(name, t, self.gyro[cut], self.acc[cut], self.gravity, gt, gps, self.source)
 
     @property
     def dt(self) -> np.ndarray:

@@ -35,7 +35,7 @@ import numpy as np
 import torch
 
 from learned_imu.config import ExperimentConfig, SequenceConfig, resolve_device, save_config, to_dict
-from learned_imu.datasets import SIMULATOR
+from learned_imu.datasets import SIMULATOR, SPLIT
 from learned_imu.datasets.sequence import ImuSequence
 from learned_imu.errors import ConfigError, InputError
 from learned_imu.evaluation.evaluate import Evaluation, evaluate
@@ -75,8 +75,8 @@ class RunSummary:
 
 
 def load_sequence(spec: SequenceConfig, root: str | Path) -> list[ImuSequence]:
-    """Read one configured sequence (a dataset reader, or the simulator); a list, since a reader asked to split
-    at gaps returns the pieces."""
+    """Read one configured sequence (a dataset reader, or the simulator); a list, since ``on_gap: split`` reads
+    with ``"keep"`` and splits the sequence at its gaps (``ImuSequence.split_at_gaps``)."""
     if spec.dataset == SIMULATOR:
         from learned_imu.datasets.simulator import simulate
 
@@ -84,8 +84,10 @@ def load_sequence(spec: SequenceConfig, root: str | Path) -> list[ImuSequence]:
     from learned_imu.datasets import read_sequence
 
     path = Path(spec.path)
-    out = read_sequence(spec.dataset, path if path.is_absolute() else Path(root) / path, **spec.options)
-    return [s.part(*spec.span) for s in (out if isinstance(out, list) else [out])]
+    split = spec.options.get("on_gap") == SPLIT
+    options = {**spec.options, "on_gap": "keep"} if split else spec.options
+    sequence = read_sequence(spec.dataset, path if path.is_absolute() else Path(root) / path, **options)
+    return [s.part(*spec.span) for s in (sequence.split_at_gaps() if split else [sequence])]
 
 
 def load_sequences(specs: tuple[SequenceConfig, ...], root: str | Path) -> list[ImuSequence]:

@@ -58,7 +58,7 @@ def test_keeping_the_first_row_reports_the_gap(shared_data):
     with pytest.raises(DataError, match="gap of 1.92 s") as err:
         read_kitti(shared_data / "kitti_gtsam", skip_first=False)
     assert err.value.line == 3  # header, first row, then the row after the gap
-    parts = read_kitti(shared_data / "kitti_gtsam", skip_first=False, on_gap="split", gps_file=None)
+    parts = read_kitti(shared_data / "kitti_gtsam", skip_first=False, on_gap="keep", gps_file=None).split_at_gaps()
     assert len(parts) == 1 and len(parts[0]) == IMU_ROWS - 1  # a 1-sample part is not a sequence
 
 

@@ -8,9 +8,11 @@ from datetime import timedelta
 import numpy as np
 import pytest
 
+from learned_imu.config import SequenceConfig
 from learned_imu.datasets import read_sequence
 from learned_imu.datasets.kitti_raw import OXTS_FIELDS
-from learned_imu.errors import DataError
+from learned_imu.errors import DataError, InputError
+from learned_imu.training.experiment import load_sequence
 
 REPAIR = {"on_backward": "drop", "on_duplicate": "drop", "on_gap": "keep"}
 
@@ -51,10 +53,16 @@ def test_timestamp_anomalies_get_clear_errors_and_the_repair_options(shared_data
         read_sequence("kitti_raw", path)
     with pytest.raises(DataError, match=r"duplicated time stamp.*on_duplicate='drop'"):
         read_sequence("kitti_raw", path, on_backward="drop")
-    with pytest.raises(DataError, match=r"gap of .* s.*on_gap='split' or 'keep'"):
+    with pytest.raises(DataError, match=r"gap of .* s.*pass on_gap='keep' \(then split_at_gaps\(\)"):
         read_sequence("kitti_raw", path, on_backward="drop", on_duplicate="drop")
-    parts = read_sequence("kitti_raw", path, on_backward="drop", on_duplicate="drop", on_gap="split")
+    whole = read_sequence("kitti_raw", path, on_backward="drop", on_duplicate="drop", on_gap="keep")
+    parts = whole.split_at_gaps()
     assert len(parts) == 3 and all(np.all(np.diff(p.t) < 0.02) for p in parts)
+    assert sum(len(p) for p in parts) == len(whole) and [p.name for p in parts][-1].endswith("_part2")
+    with pytest.raises(InputError, match="on_gap='split' is a step of its own"):  # readers return one sequence
+        read_sequence("kitti_raw", path, on_backward="drop", on_duplicate="drop", on_gap="split")
+    spec = SequenceConfig("kitti_raw", str(path), {"on_backward": "drop", "on_duplicate": "drop", "on_gap": "split"})
+    assert [len(p) for p in load_sequence(spec, ".")] == [len(p) for p in parts]  # a config's on_gap: split
     with pytest.raises(ValueError, match="reader option 'on_backward': expected one of error, drop"):
         read_sequence("kitti_raw", path, on_backward="sort")
 

@@ -6,7 +6,8 @@ Contents (plain tensors, numbers, strings, lists and dicts only, so the safe loa
 - ``config``: the resolved ``ExperimentConfig`` as a plain dict (``learned_imu.config.to_dict``), from which
   the model is rebuilt without the YAML file;
 - ``trainer``: ``Trainer.state_dict()`` (model, optimiser, schedule, RNG states, epochs done);
-- ``best``: the best validation record so far (a dict of floats, or empty);
+- ``best``: the best validation record so far (``BestEpoch.to_dict()``: the epoch's metrics log entry plus what
+  the calibration added; empty before the first epoch);
 - ``trained_on`` (optional; absent in files written before it): ``rate_hz``, the median IMU rate of the training
   sequences, and ``datasets``, their reader names. ``model_from_checkpoint`` hands it to the model
   (``model.trained_on``), and ``learned_imu.training.experiment.correct`` refuses data whose rate differs by more than
@@ -15,8 +16,10 @@ Contents (plain tensors, numbers, strings, lists and dicts only, so the safe loa
 
 from __future__ import annotations
 
+import math
 import pickle
 import zipfile
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
@@ -26,15 +29,59 @@ from learned_imu.errors import DataError
 from learned_imu.io import atomic_file
 from learned_imu.network.model import AirImuNet
 
+
+@dataclass(frozen=True)
+class BestEpoch:
+    """The best validation epoch of a run: its number (0-based), validation loss (the selection criterion), wall
+    time since the run began (s) and the rest of its ``metrics.jsonl`` entry (``metrics``: ``train_loss``, ``lr``,
+    ``val_roe_deg``, ...); then what the calibration of ``best.pt`` did: ``calibrated``, the second stage's final
+    NLL, the (gyro, acc) noise scales. Checkpoints store it as a plain dict (``to_dict``), which older files are."""
+
+    epoch: int
+    val_loss: float
+    seconds: float
+    metrics: dict = field(default_factory=dict)
+    calibrated: bool = False
+    calibration_nll: float | None = None
+    noise_scales: tuple[float, float] | None = None
+
+    @classmethod
+    def from_dict(cls, data: dict) -> BestEpoch | None:
+        """The record of a stored dict (a checkpoint's ``best`` or a metrics entry); None for an empty one."""
+        if not data:
+            return None
+        own = {"epoch", "val_loss", "seconds", *CALIBRATION_FIELDS}
+        scales = data.get("noise_scales")
+        return cls(
+            epoch=int(data["epoch"]), val_loss=float(data["val_loss"]), seconds=float(data.get("seconds", math.nan)),
+            metrics={k: v for k, v in data.items() if k not in own}, calibrated=bool(data.get("calibrated", False)),
+            calibration_nll=data.get("calibration_nll"), noise_scales=None if scales is None else tuple(scales),
+        )  # fmt: skip
+
+    def to_dict(self) -> dict:
+        """Flat and ``weights_only``-loadable: the metrics, the three fields, and the calibration keys once set."""
+        out = {**self.metrics, "epoch": self.epoch, "val_loss": self.val_loss, "seconds": self.seconds}
+        if self.calibrated:
+            out["calibrated"] = True
+        if self.calibration_nll is not None:
+            out["calibration_nll"] = self.calibration_nll
+        if self.noise_scales is not None:
+            out["noise_scales"] = list(self.noise_scales)
+        return out
+
+
+CALIBRATION_FIELDS = ("calibrated", "calibration_nll", "noise_scales")  # what calibrating best.pt adds
 FORMAT = "airimu-checkpoint"
 VERSION = 1
 _REQUIRED = ("format", "version", "config", "trainer", "best")
 
 
 def save_checkpoint(
-    path: str | Path, config: dict, trainer_state: dict, best: dict, trained_on: dict | None = None
+    path: str | Path, config: dict, trainer_state: dict, best: BestEpoch | dict | None, trained_on: dict | None = None
 ) -> Path:
-    """Write a checkpoint atomically (a crash leaves the previous file intact)."""
+    """Write a checkpoint atomically (a crash leaves the previous file intact); ``best`` a record, or a stored dict
+    as read (hand-made files: ``{}``)."""
+    best = best.to_dict() if isinstance(best, BestEpoch) else dict(best or {})
     payload = {"format": FORMAT, "version": VERSION, "config": config, "trainer": trainer_state, "best": best}
     if trained_on is not None:
         payload["trained_on"] = trained_on

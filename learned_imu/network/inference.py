@@ -13,7 +13,7 @@ Units: gyro rad/s, acc m/s^2, IMU frame; noise densities rad^2/s and m^2/s^3 (``
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -73,7 +73,7 @@ def scale_checkpoint_noise(checkpoint: str | Path, sequence: ImuSequence, out: s
     and write the result to ``out`` (may be ``checkpoint`` itself; the scales accumulate in ``best.noise_scales``).
     ``sequence`` must have ground truth and be held out (neither trained nor evaluated on)."""
     from learned_imu.config import ExperimentConfig, from_dict
-    from learned_imu.network.checkpoint import load_checkpoint, model_from_checkpoint, save_checkpoint
+    from learned_imu.network.checkpoint import BestEpoch, load_checkpoint, model_from_checkpoint, save_checkpoint
     from learned_imu.training.experiment import build_windows
     from learned_imu.training.train import noise_residuals, scale_noise
 
@@ -87,8 +87,10 @@ def scale_checkpoint_noise(checkpoint: str | Path, sequence: ImuSequence, out: s
     scales = residuals.best_scales()
     before, after = residuals.nse(), residuals.nse(*scales)
     scale_noise(model, *scales)
-    previous = payload["best"].get("noise_scales", [1.0, 1.0])
-    best = {**payload["best"], "noise_scales": [previous[0] * scales[0], previous[1] * scales[1]]}
+    stored = BestEpoch.from_dict(payload["best"])  # None in a hand-made file without a best epoch
+    previous = (stored.noise_scales if stored else None) or (1.0, 1.0)
+    total = (previous[0] * float(scales[0]), previous[1] * float(scales[1]))
+    best = replace(stored, noise_scales=total) if stored else {"noise_scales": list(total)}
     written = save_checkpoint(
         out, config, {**payload["trainer"], "model": model.state_dict()}, best, payload.get("trained_on")
     )

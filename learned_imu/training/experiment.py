@@ -40,7 +40,7 @@ from learned_imu.datasets.sequence import ImuSequence
 from learned_imu.errors import ConfigError, InputError
 from learned_imu.evaluation.evaluate import Evaluation, evaluate
 from learned_imu.io import atomic_file, folder_lock, remove_temporaries
-from learned_imu.network.checkpoint import build_model, load_checkpoint, save_checkpoint
+from learned_imu.network.checkpoint import CALIBRATION_FIELDS, BestEpoch, build_model, load_checkpoint, save_checkpoint
 from learned_imu.network.inference import MAX_RATE_MISMATCH, check_rate, check_times_rate, correct  # noqa: F401 (re-exported: earlier import path)
 from learned_imu.network.model import AirImuNet
 from learned_imu.training.distributed import World, agree, barrier, check_batch_size, is_writer
@@ -185,8 +185,8 @@ def _train_run(config: ExperimentConfig, folder: Path, progress: bool, world: Wo
             entry["val_rpe_rmse_m"] = float(np.mean([m.rpe_rmse_m for m in metrics]))
         entry["seconds"] = time.perf_counter() - clock
         history.append(entry)
-        improved = not best or entry["val_loss"] < best["val_loss"]  # val_loss: rank 0's, on every rank
-        best = dict(entry) if improved else best
+        improved = best is None or entry["val_loss"] < best.val_loss  # val_loss: rank 0's, on every rank
+        best = BestEpoch.from_dict(entry) if improved else best
         if writer:
             _write_epoch(folder, cfg_dict, trainer, history, best, improved, trained_on)
             if on_epoch is not None:
@@ -197,12 +197,13 @@ def _train_run(config: ExperimentConfig, folder: Path, progress: bool, world: Wo
     if writer and use_cov:
         _finish_calibration(folder, cfg_dict, trainer, best, t, trained_on)
     barrier(world)  # every rank returns once the folder is complete
-    return RunSummary(folder, trainer.epochs_done, int(best["epoch"]), best["val_loss"], best["seconds"])
+    return RunSummary(folder, trainer.epochs_done, best.epoch, best.val_loss, best.seconds)
 
 
 def _write_epoch(
-    folder: Path, cfg_dict: dict, trainer: Trainer, history: list[dict], best: dict, improved: bool, trained_on: dict
-):
+    folder: Path, cfg_dict: dict, trainer: Trainer, history: list[dict], best: BestEpoch, improved: bool,
+    trained_on: dict,
+):  # fmt: skip
     """An epoch's files: ``best.pt`` if it improved, the metrics log, ``last.pt``."""
     if improved:
         save_checkpoint(folder / "best.pt", cfg_dict, trainer.state_dict(), best, trained_on)
@@ -212,41 +213,38 @@ def _write_epoch(
     save_checkpoint(folder / "last.pt", cfg_dict, trainer.state_dict(), best, trained_on)
 
 
-CALIBRATION_KEYS = ("calibrated", "calibration_nll", "noise_scales")  # what _calibrate_best adds to the best record
-
-
-def _finish_calibration(folder: Path, cfg_dict: dict, trainer: Trainer, best: dict, t, trained_on: dict) -> None:
+def _finish_calibration(folder: Path, cfg_dict: dict, trainer: Trainer, best: BestEpoch, t, trained_on: dict) -> None:
     """Calibrate the best checkpoint if it is not yet (a finished run asked for the scaling later gets it then; the
     second stage is never repeated). ``best.pt`` is written before ``last.pt``: after a kill between the two, the
     record in ``best.pt`` says what was done, and only ``last.pt`` is brought up to date."""
-    stored = load_checkpoint(folder / "best.pt")["best"]
-    if stored.get("epoch") == best.get("epoch"):
-        best = {**best, **{key: stored[key] for key in CALIBRATION_KEYS if key in stored}}
-    stage = t.calibration_steps > 0 and not best.get("calibrated", False)
-    scale = t.scale_noise_on_val and "noise_scales" not in best
+    stored = BestEpoch.from_dict(load_checkpoint(folder / "best.pt")["best"])
+    if stored is not None and stored.epoch == best.epoch:
+        best = replace(best, **{name: getattr(stored, name) for name in CALIBRATION_FIELDS})
+    stage = t.calibration_steps > 0 and not best.calibrated
+    scale = t.scale_noise_on_val and best.noise_scales is None
     if stage or scale:
         _calibrate_best(folder, cfg_dict, trainer, best, t, stage, scale, trained_on)
         return
     last = load_checkpoint(folder / "last.pt")
-    if last["best"] != best:
+    if BestEpoch.from_dict(last["best"]) != best:
         save_checkpoint(folder / "last.pt", cfg_dict, last["trainer"], best, trained_on)
 
 
 def _calibrate_best(
-    folder: Path, cfg_dict: dict, trainer: Trainer, best: dict, t, stage: bool, scale: bool, trained_on: dict
+    folder: Path, cfg_dict: dict, trainer: Trainer, best: BestEpoch, t, stage: bool, scale: bool, trained_on: dict
 ) -> None:
     """Second stage on the best checkpoint (``train.calibrate_uncertainty``), then the noise scaling on the
     validation windows (``train.fit_noise_scales``), as asked; marks it ``calibrated``."""
     state = load_checkpoint(folder / "best.pt")["trainer"]
     trainer.model.load_state_dict(state["model"])
-    best = {**best, "calibrated": True}
+    best = replace(best, calibrated=True)
     if stage:
         nll = calibrate_uncertainty(trainer.model, trainer.train, t.calibration_steps, t.batch_size, seed=t.seed)
-        best["calibration_nll"] = nll
+        best = replace(best, calibration_nll=nll)
     if scale:
-        best["noise_scales"] = list(fit_noise_scales(trainer.model, trainer.val))
-        scale_noise(trainer.model, *best["noise_scales"])
-        log.info("noise scaled by %.3g (gyro) and %.3g (acc) on the validation windows", *best["noise_scales"])
+        best = replace(best, noise_scales=tuple(float(s) for s in fit_noise_scales(trainer.model, trainer.val)))
+        scale_noise(trainer.model, *best.noise_scales)
+        log.info("noise scaled by %.3g (gyro) and %.3g (acc) on the validation windows", *best.noise_scales)
     state["model"] = trainer.model.state_dict()
     save_checkpoint(folder / "best.pt", cfg_dict, state, best, trained_on)
     last = load_checkpoint(folder / "last.pt")
@@ -254,11 +252,11 @@ def _calibrate_best(
     log.info("calibrated the noise of %s", folder / "best.pt")
 
 
-def _resume(folder: Path, cfg_dict: dict, trainer: Trainer) -> tuple[list[dict], dict]:
+def _resume(folder: Path, cfg_dict: dict, trainer: Trainer) -> tuple[list[dict], BestEpoch | None]:
     """Restore ``trainer`` from ``folder/last.pt`` if there is one; the metrics log is cut to its epochs."""
     last = folder / "last.pt"
     if not last.exists():
-        return [], {}
+        return [], None
     payload = load_checkpoint(last)
     differs = _differences(payload["config"], cfg_dict)
     if differs:
@@ -271,7 +269,7 @@ def _resume(folder: Path, cfg_dict: dict, trainer: Trainer) -> tuple[list[dict],
     lines = metrics.read_text().splitlines() if metrics.exists() else []
     history = [json.loads(line) for line in lines][: trainer.epochs_done]
     log.info("resuming %s after epoch %d", folder, trainer.epochs_done)
-    return history, dict(payload["best"])
+    return history, BestEpoch.from_dict(payload["best"])
 
 
 def _differences(old: dict, new: dict, where: str = "") -> list[str]:
@@ -290,7 +288,7 @@ def _differences(old: dict, new: dict, where: str = "") -> list[str]:
 
 
 def _stalled(history: list[dict], best: dict, patience: int) -> bool:
-    return patience > 0 and bool(history) and history[-1]["epoch"] - best["epoch"] >= patience
+    return patience > 0 and bool(history) and history[-1]["epoch"] - best.epoch >= patience
 
 
 def _write_metrics(path: Path, history: list[dict]) -> None:

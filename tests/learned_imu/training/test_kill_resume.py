@@ -118,7 +118,7 @@ def save_checkpoint(path, config, trainer_state, best, *rest):  # between the wr
     out = real_save(path, config, trainer_state, best, *rest)
     if MOMENT == "between_writes" and path.name == "last.pt" and trainer_state["epochs_done"] == KILL_EPOCH + 1:
         die()
-    if MOMENT == "after_calibrated_best" and path.name == "best.pt" and best.get("calibrated"):
+    if MOMENT == "after_calibrated_best" and path.name == "best.pt" and getattr(best, "calibrated", False):
         die()  # the calibrated best.pt is on disk, last.pt does not know yet
     return out
 

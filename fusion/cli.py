@@ -262,7 +262,6 @@ def evaluate(
 ) -> None:
     """Integrate a sequence's IMU (raw, or corrected by --checkpoint) over windows restarted from ground truth and
     print the paper's metrics."""
-    from rich.console import Console
     from rich.table import Table
 
     from learned_imu.config import INTERVAL_UNITS
@@ -295,9 +294,9 @@ def evaluate(
     for column, _ in names:
         table.add_column(column)
     table.add_row(*(f"{getattr(result, key):.4g}" for _, key in names))
-    Console().print(table)
+    _wide_console().print(table)
     if json_out:
-        Console().print(f"metrics written to {write_json_atomic(json_out, result.to_json_dict())}")
+        _wide_console().print(f"metrics written to {write_json_atomic(json_out, result.to_json_dict())}")
 
 
 @app.command()
@@ -311,8 +310,6 @@ def train(
 ) -> None:
     """Train AirIMU (corrections + uncertainty) into a run folder: config.yaml, metrics.jsonl, best.pt, last.pt.
     Launched by torchrun (README: several processes or machines), the processes share each batch."""
-    from rich.console import Console
-
     from fusion.recording import write_training_recording
     from learned_imu.training.distributed import process_group
     from learned_imu.training.experiment import train_run
@@ -323,7 +320,7 @@ def train(
         summary = train_run(cfg, out, progress=progress, world=world, on_epoch=write_training_recording)
     if world is not None and not world.writer:
         return
-    Console().print(
+    _wide_console().print(
         f"{summary.epochs} epochs; best validation loss {summary.best_val_loss:.5f} at epoch {summary.best_epoch} "
         f"({summary.seconds_to_best:.0f} s of training); run folder: {summary.folder}"
     )
@@ -387,12 +384,13 @@ def _check_outputs(files: dict | None = None, folders: dict | None = None) -> No
 
 
 def _wide_console():
-    """A rich console; 150 columns when not a terminal (logs, pipes), so the tables do not wrap."""
+    """A rich console; 150 columns when not a terminal (logs, pipes), so the tables do not wrap; lines of text
+    (paths) are never wrapped either (soft wrap)."""
     import sys
 
     from rich.console import Console
 
-    return Console(width=None if sys.stdout.isatty() else 150)
+    return Console(width=None if sys.stdout.isatty() else 150, soft_wrap=True)
 
 
 def _paper_table(paper_table):
@@ -442,8 +440,6 @@ def export(
     ),
 ) -> None:
     """Export corrected samples, their learned noise and preintegrated keyframe deltas + covariances for GTSAM."""
-    from rich.console import Console
-
     from learned_imu.export import export_preintegration, keyframes_from_spec
 
     _check_outputs(files={"--out": out})
@@ -458,7 +454,7 @@ def export(
             raise typer.BadParameter("without --checkpoint, give --gyro-noise-density and --acc-noise-density")
         _check_noise_flags(gyro_noise_density, acc_noise_density)
         written = export_preintegration(out, sequence, index, gyro_noise_density**2, acc_noise_density**2)
-    Console().print(f"{len(index) - 1} keyframe intervals of {sequence.name} written to {written}")
+    _wide_console().print(f"{len(index) - 1} keyframe intervals of {sequence.name} written to {written}")
 
 
 @app.command("scale-noise")
@@ -473,15 +469,13 @@ def scale_noise_command(
     """Scale a trained model's noise densities (one factor per sensor) to a held-out sequence's windows by maximum
     likelihood, so that its covariance is calibrated on data it has not seen
     (learned_imu.training.train.noise_residuals)."""
-    from rich.console import Console
-
     from learned_imu.network.inference import scale_checkpoint_noise
 
     _check_outputs(files={"--out": out})
     sequence = _read_with_options(dataset, path, reader_option or [], imu_file)
     done = scale_checkpoint_noise(checkpoint, sequence, out)
     (gyro, acc), before, after = done.scales, done.nse_before, done.nse_after
-    Console().print(
+    _wide_console().print(
         f"noise scaled by {gyro:.3g} (gyro) and {acc:.3g} (acc) on {sequence.name}; NSE rot/pos/vel "
         f"{before[0]:.2f}/{before[1]:.2f}/{before[2]:.2f} -> {after[0]:.2f}/{after[1]:.2f}/{after[2]:.2f}; "
         f"written to {done.path}"
@@ -496,13 +490,11 @@ def export_model(
 ) -> None:
     """Write the model's streaming step as a file that runs without this package (TorchScript or ONNX, explicit
     GRU/convolution state in and out; conventions in learned_imu.network.deploy)."""
-    from rich.console import Console
-
     from learned_imu.network.deploy import export_checkpoint
 
     _check_outputs(files={"--out": out})
     written = export_checkpoint(checkpoint, out, format)
-    Console().print(f"{format} model of {checkpoint} written to {written}")
+    _wide_console().print(f"{format} model of {checkpoint} written to {written}")
 
 
 def main() -> None:

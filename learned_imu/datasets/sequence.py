@@ -78,9 +78,6 @@ class GpsFixes:
         """The fixes at ``index`` (a slice, boolean mask or index array)."""
         return GpsFixes(self.t[index], self.pos[index], self.sigma[index])
 
-    def __len__(self) -> int:
-        return len(self.t)
-
 
 @dataclass(frozen=True, eq=False)
 class ImuSequence:

@@ -10,7 +10,7 @@ Contents (plain tensors, numbers, strings, lists and dicts only, so the safe loa
   the calibration added; empty before the first epoch);
 - ``trained_on`` (optional; absent in files written before it): ``rate_hz``, the median IMU rate of the training
   sequences, and ``datasets``, their reader names. ``model_from_checkpoint`` hands it to the model
-  (``model.trained_on``), and ``learned_imu.training.experiment.correct`` refuses data whose rate differs by more than
+  (``model.trained_on``), and ``learned_imu.network.inference.correct`` refuses data whose rate differs by more than
   ``MAX_RATE_MISMATCH``.
 """
 

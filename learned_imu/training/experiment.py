@@ -41,7 +41,7 @@ from learned_imu.errors import ConfigError, InputError
 from learned_imu.evaluation.evaluate import Evaluation, evaluate
 from learned_imu.io import atomic_file, folder_lock, remove_temporaries
 from learned_imu.network.checkpoint import CALIBRATION_FIELDS, BestEpoch, build_model, load_checkpoint, save_checkpoint
-from learned_imu.network.inference import MAX_RATE_MISMATCH, check_rate, check_times_rate, correct  # noqa: F401 (re-exported: earlier import path)
+from learned_imu.network.inference import correct
 from learned_imu.network.model import AirImuNet
 from learned_imu.training.distributed import World, agree, barrier, check_batch_size, is_writer
 from learned_imu.training.losses import LossWeights

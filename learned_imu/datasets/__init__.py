@@ -2,9 +2,11 @@
 ``learned_imu.datasets.sequence``).
 
 ``read_sequence("euroc", path, **options)`` dispatches by name through ``READERS``; each reader's module
-docstring states its frames, quaternion order and units. Shared parsing and checks live in the ``_`` modules:
-``_table`` (text parsing with line numbers), ``_checks`` (time stamps, gaps, units, frame self-check),
-``_assemble`` (ground-truth resampling, velocity from positions, crop and gap policy).
+docstring states its frames, quaternion order and units. The options every reader shares (duplicates, gaps, crop,
+self-checks, velocity window) are one ``ReadChecks`` record, given flat here and in configs. Shared parsing and
+checks live in the ``_`` modules: ``_table`` (text parsing with line numbers), ``_checks`` (time stamps, gaps,
+units, frame self-check), ``_assemble`` (``ReadChecks``, ground-truth resampling, velocity from positions, crop
+and gap policy).
 """
 
 from __future__ import annotations
@@ -12,8 +14,11 @@ from __future__ import annotations
 import inspect
 import math
 from collections.abc import Callable
+from dataclasses import fields
 from pathlib import Path
 
+from learned_imu.datasets import broad, kitti, kitti_raw
+from learned_imu.datasets._assemble import ReadChecks
 from learned_imu.datasets._table import check_input_size
 from learned_imu.datasets.broad import read_broad
 from learned_imu.datasets.csv import read_csv
@@ -31,6 +36,8 @@ READERS: dict[str, Callable[..., ImuSequence]] = {
     "rosbag": read_rosbag,
     "csv": read_csv,
 }
+# the ReadChecks fields a reader cannot honour (each module's UNUSED_CHECKS): no option of that reader
+UNUSED_CHECKS = {"kitti": kitti.UNUSED_CHECKS, "kitti_raw": kitti_raw.UNUSED_CHECKS, "broad": broad.UNUSED_CHECKS}
 
 
 SPLIT = "split"  # a config's on_gap: read with "keep", then ImuSequence.split_at_gaps()
@@ -44,7 +51,8 @@ MAX_OPTION_DEPTH = 3
 def read_sequence(dataset: str, path: str | Path | None = None, **options) -> ImuSequence:
     """Read a sequence with the reader registered as ``dataset`` (a key of ``READERS``).
 
-    ``options`` are the reader's keyword arguments (checked by ``check_options``); ``path`` may be None only for
+    ``options`` are the reader's keyword arguments (checked by ``check_options``), the fields of its ``checks``
+    record given flat (``on_gap="keep"``) and gathered into a ``ReadChecks`` here; ``path`` may be None only for
     ``"kitti"`` (gtsam's copy). Splitting at gaps is a step of its own: ``on_gap="keep"``, then
     ``ImuSequence.split_at_gaps()`` (a config's ``on_gap: split`` does both). A file the reader cannot parse at all
     (zero bytes, random bytes, another format, no permission) is a ``DataError`` naming it; the parser's own
@@ -57,12 +65,13 @@ def read_sequence(dataset: str, path: str | Path | None = None, **options) -> Im
     if path is None and dataset != "kitti":
         raise InputError(f"dataset {dataset!r} needs a path")
     options = check_options(dataset, options, "reader option")
+    checks = ReadChecks(**{f.name: options.pop(f.name) for f in fields(ReadChecks) if f.name in options})
     if path is not None and not Path(path).exists():
         raise DataError(path, "path", "no such file or folder")
     if path is not None and Path(path).is_file():
         check_input_size(Path(path))
     try:
-        return READERS[dataset](path, **options)
+        return READERS[dataset](path, checks=checks, **options)
     except (AirImuError, MemoryError, KeyboardInterrupt):
         raise
     except Exception as error:  # the parsers' own errors (scipy, h5py, rosbags, UnicodeDecodeError, OSError...)
@@ -73,8 +82,10 @@ def read_sequence(dataset: str, path: str | Path | None = None, **options) -> Im
 
 def check_options(dataset: str, options: dict, where: str = "options") -> dict:
     """``options`` checked against the signature of ``dataset``'s reader (or ``simulate`` for ``"simulator"``):
-    every key a keyword of it, every value of the annotated type (numbers, strings, booleans, lists of them),
-    at most ``MAX_OPTION_ITEMS`` values nested ``MAX_OPTION_DEPTH`` deep. A ``ConfigError`` names ``where``.key."""
+    every key a keyword of it or a field of its ``checks`` record (``ReadChecks``, less the reader's
+    ``UNUSED_CHECKS``), every value of the annotated type (numbers, strings, booleans, lists of them) or one of the
+    option's choices, at most ``MAX_OPTION_ITEMS`` values nested ``MAX_OPTION_DEPTH`` deep. A ``ConfigError`` names
+    ``where``.key."""
     from learned_imu.errors import ConfigError
 
     if dataset == SIMULATOR:
@@ -87,18 +98,21 @@ def check_options(dataset: str, options: dict, where: str = "options") -> dict:
     if not isinstance(options, dict):
         raise ConfigError(f"{where}: expected a mapping of option names to values, got {type(options).__name__}")
     _check_size(options, where)
-    parameters = {n: p for n, p in inspect.signature(function).parameters.items() if n != "path"}
+    parameters = {n: p.annotation for n, p in inspect.signature(function).parameters.items() if n != "path"}
+    if parameters.pop("checks", None) is not None:  # a reader: its ReadChecks fields are options of their own
+        unused = UNUSED_CHECKS.get(dataset, ())
+        parameters |= {f.name: f.type for f in fields(ReadChecks) if f.name not in unused}
     for key, value in options.items():
         if key not in parameters:
             raise ConfigError(
                 f"{where} '{key}': {dataset} has no such option; its options: {', '.join(sorted(parameters))}"
             )
-        annotation = parameters[key].annotation
-        if isinstance(annotation, str) and not _matches(annotation, value):
-            raise ConfigError(f"{where} '{key}': expected {annotation}, got {value!r} ({type(value).__name__})")
         allowed = _choices().get(key)
         if allowed is not None and value not in allowed:
             raise ConfigError(f"{where} '{key}': expected one of {', '.join(map(str, allowed))}, got {value!r}")
+        annotation = parameters[key]
+        if allowed is None and isinstance(annotation, str) and not _matches(annotation, value):
+            raise ConfigError(f"{where} '{key}': expected {annotation}, got {value!r} ({type(value).__name__})")
         if key in POSITIVE_OPTIONS and value is not None and not (math.isfinite(value) and value > 0):
             raise ConfigError(f"{where} '{key}': expected a positive number ({POSITIVE_OPTIONS[key]}), got {value!r}")
     return dict(options)
@@ -169,6 +183,7 @@ def _matches(annotation: str, value) -> bool:
 __all__ = [
     "READERS",
     "SIMULATOR",
+    "ReadChecks",
     "check_options",
     "read_broad",
     "read_csv",

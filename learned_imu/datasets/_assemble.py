@@ -1,5 +1,6 @@
 """From arrays as read to a checked ``ImuSequence``: velocity from positions, ground truth resampled to the IMU
-time stamps, crop to the IMU/GT overlap, gap policy, units check and frame self-check. Shared by every reader.
+time stamps, crop to the IMU/GT overlap, gap policy, units check and frame self-check. Shared by every reader, as
+are the options of those checks, one ``ReadChecks`` record (a config or ``read_sequence`` gives its fields flat).
 
 Conventions decided here (each reader's docstring repeats the ones that matter to it):
 
@@ -19,8 +20,9 @@ Conventions decided here (each reader's docstring repeats the ones that matter t
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +37,66 @@ VEL_POLYORDER = 3
 # IMU stamps this fraction of a median GT step outside the GT span still count as inside (TUM files print
 # stamps to 10 us, so the first/last GT stamp may miss its IMU stamp by a few us)
 EDGE_TOL_STEPS = 0.01
+
+
+@dataclass(frozen=True)
+class ReadChecks:
+    """How a reader checks what it reads: the options every reader shares (flat keys in a config's ``options``,
+    ``read_sequence``'s keywords and the CLI's ``--reader-option``, gathered into this record there).
+
+    Attributes:
+        on_duplicate: repeated time stamps (IMU and ground truth): ``"error"`` names the first one's line;
+            ``"drop"`` keeps the first sample of each (``_checks.check_timestamps``).
+        on_gap: an IMU time step longer than ``MAX_GAP_STEPS`` median steps: ``"error"`` names it; ``"keep"``
+            accepts the gaps (``ImuSequence.split_at_gaps()`` then splits; a config's ``on_gap: split`` does both).
+        crop_to_gt: crop the IMU to the time span of the valid ground truth; False keeps every IMU sample and
+            marks those outside it ``valid=False``.
+        check_frame: run the frame and motion self-checks of the ground truth against the IMU
+            (``_checks.check_frame``).
+        check_units: refuse acc that does not look like m/s^2 or gyro that does not look like rad/s
+            (``_checks.check_units``; ``read_csv`` also refuses time stamps at no IMU's rate).
+        vel_window_s: s, the centred window of the local cubic that differentiates ground-truth positions into a
+            velocity where the file holds none (module docstring).
+
+    A reader that cannot honour a field refuses any value but its default (``refuse``; ``check_options`` refuses
+    it as no option of that reader): ``read_kitti`` crop_to_gt, check_frame and vel_window_s (the files
+    hold no ground truth); ``read_kitti_raw`` crop_to_gt and vel_window_s (its ground truth lies on the IMU's own
+    stamps, with the velocity read from the file); ``read_broad`` on_duplicate (its stamps are the sample index
+    over the rate, never repeated).
+    """
+
+    on_duplicate: _checks.OnDuplicate = "error"
+    on_gap: _checks.OnGap = "error"
+    crop_to_gt: bool = True
+    check_frame: bool = True
+    check_units: bool = True
+    vel_window_s: float = VEL_WINDOW_S
+
+    def __post_init__(self):
+        if self.on_gap == "split":
+            raise _error("on_gap", "'split' is a step of its own: read with on_gap='keep', then .split_at_gaps()")
+        for name, allowed in (("on_duplicate", _checks.ON_DUPLICATE), ("on_gap", _checks.ON_GAP)):
+            if getattr(self, name) not in allowed:
+                raise _error(name, f"expected one of {', '.join(allowed)}, got {getattr(self, name)!r}")
+        for name in ("crop_to_gt", "check_frame", "check_units"):
+            if not isinstance(getattr(self, name), bool):
+                raise _error(name, f"expected True or False, got {getattr(self, name)!r}")
+        window = self.vel_window_s
+        real = isinstance(window, int | float) and not isinstance(window, bool)
+        if not (real and math.isfinite(window) and window > 0):
+            raise _error("vel_window_s", f"expected a positive number of seconds, got {window!r}")
+
+    def refuse(self, names: tuple[str, ...], reader: str, why: str) -> None:
+        """An ``InputError`` naming the first of ``names`` that is not at its default: ``reader`` cannot honour
+        it, because ``why``."""
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name in names and value != f.default:
+                raise _error(f.name, f"{reader} cannot honour {value!r} ({why}); leave it at {f.default!r}")
+
+
+def _error(name: str, problem: str) -> InputError:
+    return InputError(f"ReadChecks.{name}: {problem}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -152,38 +214,30 @@ def build_sequence(
     *,
     gt: GtSamples | None = None,
     gps: GpsFixes | None = None,
-    on_gap: str = "error",
-    crop_to_gt: bool = True,
-    check_frame: bool = True,
-    check_units: bool = True,
-    vel_window_s: float = VEL_WINDOW_S,
+    checks: ReadChecks = ReadChecks(),
     line_of: Callable[[int], int | None] | None = None,
     frame_interval_s: float = _checks.GYRO_INTERVAL_S,
 ) -> ImuSequence:
-    """Checked sequence(s) from IMU arrays (time stamps already strictly increasing) and optional raw GT.
+    """Checked sequence from IMU arrays (time stamps already strictly increasing) and optional raw GT.
 
     Args:
+        checks: the gap policy, crop, self-checks and velocity window (``ReadChecks``; its ``on_duplicate`` was
+            the reader's to apply, through ``_checks.check_timestamps``).
         line_of: maps an index of the given arrays to its file line, for error messages.
-        on_gap: ``"error"`` (default): an IMU gap longer than ``MAX_GAP_STEPS`` median steps raises;
-            ``"keep"``: accept the gaps (``ImuSequence.split_at_gaps`` then splits the sequence if wanted).
         frame_interval_s: the frame self-check's gyro interval (``_checks.frame_score``).
     Returns:
         The checked ``ImuSequence``.
     """
-    if on_gap == "split":
-        raise InputError("on_gap='split' is a step of its own: read with on_gap='keep', then .split_at_gaps()")
-    if on_gap not in _checks.ON_GAP:
-        raise InputError(f"on_gap must be one of {_checks.ON_GAP}, got {on_gap!r}")
     line_of = line_of or (lambda row: None)
     gravity = np.asarray(gravity, dtype=np.float64)
-    if check_units:
+    if checks.check_units:
         _checks.check_units(acc, gyro, source)
     rows = np.arange(t.shape[0])
     if gt is not None:
-        rows = _overlap_rows(t, gt, crop_to_gt)
+        rows = _overlap_rows(t, gt, checks.crop_to_gt)
         t, gyro, acc = t[rows], gyro[rows], acc[rows]
     gaps = _checks.gap_indices(t)
-    if gaps.size and on_gap == "error":
+    if gaps.size and checks.on_gap == "error":
         i = int(gaps[0])
         raise DataError(
             source,
@@ -193,8 +247,8 @@ def build_sequence(
             "on_gap: split in a config)",
             line=line_of(int(rows[i + 1])),
         )
-    truth = resample_ground_truth(t, gt, vel_window_s=vel_window_s) if gt is not None else None
-    if truth is not None and check_frame:
+    truth = resample_ground_truth(t, gt, vel_window_s=checks.vel_window_s) if gt is not None else None
+    if truth is not None and checks.check_frame:
         _checks.check_frame(
             t, gyro, acc, truth.rot, truth.valid, gravity, source, gt.source, truth.vel, frame_interval_s,
             pos=truth.pos, vel_given=gt.vel is not None,

@@ -19,8 +19,10 @@ in deg/s, each also the other way round) and the DataError names the one that ma
 from __future__ import annotations
 
 import logging
+import typing
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -32,9 +34,10 @@ logger = logging.getLogger(__name__)
 
 STANDARD_GRAVITY = 9.80665  # m/s^2, the "g" of accelerometers that report in g
 DEG = np.pi / 180.0
-# a time step longer than this many median steps is a gap (IMU and ground truth alike)
-ON_DUPLICATE = ("error", "drop")
-ON_GAP = ("error", "keep")  # the readers'; a config's on_gap: split reads with keep, then splits
+OnDuplicate = Literal["error", "drop"]
+OnGap = Literal["error", "keep"]  # the readers'; a config's on_gap: split reads with keep, then splits
+ON_DUPLICATE = typing.get_args(OnDuplicate)
+ON_GAP = typing.get_args(OnGap)
 
 # units check without ground truth (median |acc| is robust to the large accelerations of hand-held trials)
 ACC_IN_G = (0.5, 2.0)  # median |acc| in this range: the file is in g
@@ -59,7 +62,7 @@ def check_timestamps(
     source: object,
     field: str = "t",
     *,
-    on_duplicate: str = "error",
+    on_duplicate: OnDuplicate = "error",
     line_of: Callable[[int], int] | None = None,
 ) -> np.ndarray:
     """Indices of the samples to keep; raises on time going backwards and, by default, on duplicates.

@@ -22,12 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
-from learned_imu.datasets._assemble import VEL_WINDOW_S, GtSamples, build_sequence
+from learned_imu.datasets._assemble import GtSamples, ReadChecks, build_sequence
 from learned_imu.datasets.sequence import ImuSequence
 from learned_imu.errors import DataError
 
 GRAVITY = 9.81
 FIELDS = {"imu_gyr": 3, "imu_acc": 3, "opt_quat": 4, "opt_pos": 3}
+UNUSED_CHECKS = ("on_duplicate",)  # ReadChecks fields refused unless at their defaults: stamps are never repeated
 
 
 def read_broad(
@@ -35,11 +36,7 @@ def read_broad(
     *,
     ground_truth: bool = True,
     gravity: float = GRAVITY,
-    on_gap: str = "error",
-    crop_to_gt: bool = True,
-    check_frame: bool = True,
-    check_units: bool = True,
-    vel_window_s: float = VEL_WINDOW_S,
+    checks: ReadChecks = ReadChecks(),
 ) -> ImuSequence:
     """Read one BROAD trial, ``.mat`` or ``.hdf5`` (see the module docstring for units and frames).
 
@@ -47,8 +44,10 @@ def read_broad(
         path: the ``.mat`` or ``.hdf5`` file.
         ground_truth: False to ignore the optical reference.
         gravity: magnitude of gravity, m/s^2 (world ENU z-up, gravity along -z).
-        on_gap, crop_to_gt, check_frame, check_units, vel_window_s: see ``_assemble.build_sequence``.
+        checks: gaps, crop, self-checks, velocity window (``_assemble.ReadChecks``); ``on_duplicate`` is refused
+            unless left at its default (the stamps are the sample index over the rate).
     """
+    checks.refuse(UNUSED_CHECKS, "read_broad", "its stamps are the sample index over the rate, never repeated")
     path = Path(path)
     if not path.is_file():
         raise DataError(path, "path", "file not found")
@@ -75,11 +74,7 @@ def read_broad(
         arrays["imu_acc"],
         np.array([0.0, 0.0, -gravity]),
         gt=gt,
-        on_gap=on_gap,
-        crop_to_gt=crop_to_gt,
-        check_frame=check_frame,
-        check_units=check_units,
-        vel_window_s=vel_window_s,
+        checks=checks,
     )
 
 

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from learned_imu.datasets._assemble import VEL_WINDOW_S, GtSamples, build_sequence
+from learned_imu.datasets._assemble import GtSamples, ReadChecks, build_sequence
 from learned_imu.datasets._checks import DEG, STANDARD_GRAVITY, check_timestamps
 from learned_imu.datasets._rotations import QUAT_ORDERS
 from learned_imu.datasets._table import ColumnKey, read_table
@@ -86,12 +86,7 @@ def read_csv(
     gt_vel: Sequence[ColumnKey] | None = None,
     gravity: float = GRAVITY,
     name: str | None = None,
-    on_duplicate: str = "error",
-    on_gap: str = "error",
-    crop_to_gt: bool = True,
-    check_frame: bool = True,
-    check_units: bool = True,
-    vel_window_s: float = VEL_WINDOW_S,
+    checks: ReadChecks = ReadChecks(),
 ) -> ImuSequence:
     """Read an IMU table (see the module docstring for the conventions).
 
@@ -104,7 +99,8 @@ def read_csv(
         gt_pos, gt_quat, quat_order, gt_vel: optional ground-truth columns (``gt_pos`` and ``gt_quat`` together).
         gravity: magnitude of gravity, m/s^2 (world z-up).
         name: sequence name (default: the file stem).
-        on_duplicate, on_gap, crop_to_gt, check_frame, check_units, vel_window_s: see ``_checks`` / ``_assemble``.
+        checks: duplicates, gaps, crop, self-checks, velocity window (``_assemble.ReadChecks``); ``check_units``
+            also refuses time stamps at no IMU's rate (``time_unit``).
     """
     t_scale = _unit(TIME_UNITS, time_unit, "time_unit")
     w_scale = _unit(GYRO_UNITS, gyro_unit, "gyro_unit")
@@ -122,9 +118,9 @@ def read_csv(
     table.require_finite(t[:, None], "time")
     imu = np.concatenate([table.columns(gyro_keys, "gyro") * w_scale, table.columns(acc_keys, "acc") * a_scale], 1)
     table.require_finite(imu, "gyro/acc")
-    keep = check_timestamps(t * t_scale, path, "time", on_duplicate=on_duplicate, line_of=table.line_of)
+    keep = check_timestamps(t * t_scale, path, "time", on_duplicate=checks.on_duplicate, line_of=table.line_of)
     t = t[keep] * t_scale
-    if check_units:
+    if checks.check_units:
         _check_time_unit(t, path, time_unit)
     gt = None
     if pos_keys is not None:
@@ -146,10 +142,6 @@ def read_csv(
         imu[keep, 3:],
         np.array([0.0, 0.0, -gravity]),
         gt=gt,
-        on_gap=on_gap,
-        crop_to_gt=crop_to_gt,
-        check_frame=check_frame,
-        check_units=check_units,
-        vel_window_s=vel_window_s,
+        checks=checks,
         line_of=lambda row: table.line_of(int(keep[row])),
     )

@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from learned_imu.datasets._assemble import VEL_WINDOW_S, GtSamples, build_sequence, resolve
-from learned_imu.datasets._checks import check_timestamps
+from learned_imu.datasets._assemble import GtSamples, ReadChecks, build_sequence, resolve
+from learned_imu.datasets._checks import OnDuplicate, check_timestamps
 from learned_imu.datasets._table import read_table
 from learned_imu.datasets.sequence import ImuSequence
 from learned_imu.errors import DataError
@@ -48,12 +48,7 @@ def read_euroc(
     gt_file: str | Path | None = None,
     ground_truth: bool = True,
     gravity: float = GRAVITY,
-    on_duplicate: str = "error",
-    on_gap: str = "error",
-    crop_to_gt: bool = True,
-    check_frame: bool = True,
-    check_units: bool = True,
-    vel_window_s: float = VEL_WINDOW_S,
+    checks: ReadChecks = ReadChecks(),
 ) -> ImuSequence:
     """Read one EuRoC / TUM-VI sequence folder (the one holding ``mav0/``).
 
@@ -64,8 +59,8 @@ def read_euroc(
             ASL. Default: the official ``data.csv``, else ``groundtruth_tum.txt``, else no ground truth.
         ground_truth: False to ignore any ground truth.
         gravity: magnitude of gravity, m/s^2 (world z-up, gravity along -z).
-        on_duplicate, on_gap, crop_to_gt, check_frame, check_units, vel_window_s: see ``_assemble.build_sequence``
-            and ``_checks.check_timestamps``.
+        checks: duplicates, gaps, crop, self-checks, velocity window (``_assemble.ReadChecks``); ``on_duplicate``
+            applies to the IMU and the ground truth.
     """
     root = Path(path)
     if not root.is_dir():
@@ -80,7 +75,7 @@ def read_euroc(
     table = read_table(imu_path, delimiter=",", min_columns=7, field="imu")
     raw = table.data[:, :7]
     table.require_finite(raw, "imu")
-    keep = check_timestamps(raw[:, 0] * NS, imu_path, "t", on_duplicate=on_duplicate, line_of=table.line_of)
+    keep = check_timestamps(raw[:, 0] * NS, imu_path, "t", on_duplicate=checks.on_duplicate, line_of=table.line_of)
     raw = raw[keep]
     gt = None
     if ground_truth:
@@ -90,7 +85,7 @@ def read_euroc(
             else next((root / f for f in GT_FILES if (root / f).is_file()), None)
         )
         if gt_path is not None:
-            gt = read_euroc_ground_truth(gt_path, on_duplicate=on_duplicate)
+            gt = read_euroc_ground_truth(gt_path, on_duplicate=checks.on_duplicate)
     return build_sequence(
         root.name,
         imu_path,
@@ -99,16 +94,12 @@ def read_euroc(
         raw[:, 4:7],
         np.array([0.0, 0.0, -gravity]),
         gt=gt,
-        on_gap=on_gap,
-        crop_to_gt=crop_to_gt,
-        check_frame=check_frame,
-        check_units=check_units,
-        vel_window_s=vel_window_s,
+        checks=checks,
         line_of=lambda row: table.line_of(int(keep[row])),
     )
 
 
-def read_euroc_ground_truth(path: str | Path, *, on_duplicate: str = "error") -> GtSamples:
+def read_euroc_ground_truth(path: str | Path, *, on_duplicate: OnDuplicate = "error") -> GtSamples:
     """Ground truth at its own stamps from an ASL ``data.csv`` or a TUM ``.txt`` (see the module docstring)."""
     path = Path(path)
     if not path.is_file():

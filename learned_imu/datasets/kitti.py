@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from learned_imu.datasets._assemble import build_sequence
+from learned_imu.datasets._assemble import ReadChecks, build_sequence
 from learned_imu.datasets._checks import check_timestamps
 from learned_imu.datasets._table import read_table
 from learned_imu.datasets.sequence import GpsFixes, ImuSequence
@@ -35,6 +35,7 @@ IMU_FILE = "KittiEquivBiasedImu.txt"
 GPS_FILE = "KittiGps_converted.txt"
 IMU_COLUMNS = ("Time", "dt", "accelX", "accelY", "accelZ", "omegaX", "omegaY", "omegaZ")
 GPS_COLUMNS = ("Time", "X", "Y", "Z")
+UNUSED_CHECKS = ("crop_to_gt", "check_frame", "vel_window_s")  # ReadChecks fields without ground truth: refused
 
 
 def read_kitti(
@@ -45,9 +46,7 @@ def read_kitti(
     skip_first: bool = True,
     gps_sigma: float = GPS_SIGMA,
     gravity: float = GRAVITY,
-    on_duplicate: str = "error",
-    on_gap: str = "error",
-    check_units: bool = True,
+    checks: ReadChecks = ReadChecks(),
 ) -> ImuSequence:
     """Read the GTSAM KITTI IMU (+ GPS) example (see the module docstring for units and frames).
 
@@ -58,14 +57,17 @@ def read_kitti(
         skip_first: drop the first IMU row (no predecessor, 1.92 s before the second row).
         gps_sigma: one-sigma GPS position noise per axis, m.
         gravity: magnitude of gravity, m/s^2 (world z-up, gravity along -z).
-        on_duplicate, on_gap, check_units: see ``_checks.check_timestamps`` and ``_assemble.build_sequence``.
+        checks: duplicates, gaps and the units check (``_assemble.ReadChecks``); the fields about ground truth
+            (``UNUSED_CHECKS``) are refused unless left at their defaults.
     """
+    checks.refuse(UNUSED_CHECKS, "read_kitti", "the files hold no ground truth")
     imu_path = _locate(path, imu_file)
     table = read_table(imu_path, delimiter=None, min_columns=len(IMU_COLUMNS), field="imu")
     raw = table.columns(IMU_COLUMNS if table.header else range(len(IMU_COLUMNS)), "imu")
     table.require_finite(raw, "imu")
     rows = np.arange(raw.shape[0])[1 if skip_first else 0 :]
-    keep = rows[check_timestamps(raw[rows, 0], imu_path, "Time", on_duplicate=on_duplicate, line_of=table.line_of)]
+    unique = check_timestamps(raw[rows, 0], imu_path, "Time", on_duplicate=checks.on_duplicate, line_of=table.line_of)
+    keep = rows[unique]
     t, acc, gyro = raw[keep, 0], raw[keep, 2:5], raw[keep, 5:8]
     gps = read_gps(_locate(path, gps_file), gps_sigma) if gps_file is not None else None
     return build_sequence(
@@ -76,8 +78,7 @@ def read_kitti(
         acc,
         np.array([0.0, 0.0, -gravity]),
         gps=gps,
-        on_gap=on_gap,
-        check_units=check_units,
+        checks=checks,
         line_of=lambda row: table.line_of(int(keep[row])),
     )
 

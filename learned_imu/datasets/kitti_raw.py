@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from learned_imu.datasets._assemble import GtSamples, build_sequence, resolve
+from learned_imu.datasets._assemble import GtSamples, ReadChecks, build_sequence, resolve
 from learned_imu.datasets._checks import check_timestamps
 from learned_imu.datasets._table import read_table
 from learned_imu.datasets.kitti import GPS_SIGMA, read_gps
@@ -62,6 +62,9 @@ OXTS_FIELDS = 30  # KITTI's dataformat.txt
 OXTS_TO_CSV = [17, 18, 19, 11, 12, 13, 0, 1, 2, 3, 4, 5, 7, 6, 10]
 GPS_FRAMES = ("fit", "as_is")
 MAX_GPS_FIT_RMS_M = 0.5  # a per-axis scale + offset leaves 8 mm on the drive the fixes belong to
+# ReadChecks fields refused unless at their defaults: the ground truth lies on the IMU's own stamps (nothing to crop)
+# with its velocity read from the file (nothing to differentiate)
+UNUSED_CHECKS = ("crop_to_gt", "vel_window_s")
 
 
 def read_kitti_raw(
@@ -70,10 +73,7 @@ def read_kitti_raw(
     ground_truth: bool = True,
     gravity: float = GRAVITY,
     on_backward: str = "error",
-    on_duplicate: str = "error",
-    on_gap: str = "error",
-    check_frame: bool = True,
-    check_units: bool = True,
+    checks: ReadChecks = ReadChecks(),
     gps_file: str | Path | None = None,
     gps_sigma: float = GPS_SIGMA,
     gps_frame: str = "fit",
@@ -85,13 +85,14 @@ def read_kitti_raw(
         ground_truth: False to ignore the GNSS/INS solution.
         gravity: magnitude of gravity, m/s^2 (world z-up, gravity along -z).
         on_backward: ``"error"`` or ``"drop"`` (drop packets whose stamp is not after the last kept one).
-        on_duplicate, on_gap, check_frame, check_units: see ``_checks.check_timestamps`` and
-            ``_assemble.build_sequence``.
+        checks: duplicates, gaps and the self-checks (``_assemble.ReadChecks``); ``UNUSED_CHECKS`` are refused
+            unless left at their defaults.
         gps_file: GPS fixes (``Time,X,Y,Z``, GTSAM's ``KittiGps_converted.txt``), relative to the drive's folder
             (the CSV's folder, or the drive folder) unless absolute; None: no GPS.
         gps_sigma: one-sigma GPS noise per axis, m (default: GTSAM's example, sqrt(0.07) m).
         gps_frame: ``"fit"`` (map the fixes into the ground truth's frame, module docstring) or ``"as_is"``.
     """
+    checks.refuse(UNUSED_CHECKS, "read_kitti_raw", "its ground truth is the IMU's own rows, velocity included")
     if on_backward not in ON_BACKWARD:
         raise ValueError(f"on_backward must be one of {ON_BACKWARD}, got {on_backward!r}")
     if gps_frame not in GPS_FRAMES:
@@ -108,7 +109,7 @@ def read_kitti_raw(
         raise DataError(path, "path", "not found (expected a KITTI raw <drive>.csv or a drive folder holding oxts/)")
     monotonic = _monotonic(rows[:, 0], source, on_backward, line_of)
     unique = check_timestamps(
-        rows[monotonic, 0], source, "t", on_duplicate=on_duplicate, line_of=lambda r: line_of(monotonic[r])
+        rows[monotonic, 0], source, "t", on_duplicate=checks.on_duplicate, line_of=lambda r: line_of(monotonic[r])
     )
     keep = monotonic[unique]
     rows = rows[keep]
@@ -135,10 +136,7 @@ def read_kitti_raw(
         np.array([0.0, 0.0, -gravity]),
         gt=gt,
         gps=gps,
-        on_gap=on_gap,
-        crop_to_gt=False,
-        check_frame=check_frame,
-        check_units=check_units,
+        checks=checks,
         line_of=lambda row: line_of(int(keep[row])),
         frame_interval_s=FRAME_INTERVAL_S,
     )

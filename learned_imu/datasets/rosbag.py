@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from learned_imu.datasets._assemble import VEL_WINDOW_S, GtSamples, build_sequence
-from learned_imu.datasets._checks import check_timestamps
+from learned_imu.datasets._assemble import GtSamples, ReadChecks, build_sequence
+from learned_imu.datasets._checks import OnDuplicate, check_timestamps
 from learned_imu.datasets.sequence import GpsFixes, ImuSequence
 from learned_imu.errors import DataError
 
@@ -52,12 +52,7 @@ def read_rosbag(
     use_twist: bool = True,
     gravity: float = GRAVITY,
     name: str | None = None,
-    on_duplicate: str = "error",
-    on_gap: str = "error",
-    crop_to_gt: bool = True,
-    check_frame: bool = True,
-    check_units: bool = True,
-    vel_window_s: float = VEL_WINDOW_S,
+    checks: ReadChecks = ReadChecks(),
     gps_topic: str | None = None,
     gps_sigma: float = DEFAULT_GPS_SIGMA_M,
 ) -> ImuSequence:
@@ -71,7 +66,8 @@ def read_rosbag(
         use_twist: Odometry only; False differentiates positions instead of using the twist.
         gravity: magnitude of gravity, m/s^2 (world z-up).
         name: sequence name (default: the bag's stem).
-        on_duplicate, on_gap, crop_to_gt, check_frame, check_units, vel_window_s: see ``_checks`` / ``_assemble``.
+        checks: duplicates (IMU and ground truth), gaps, crop, self-checks, velocity window
+            (``_assemble.ReadChecks``).
         gps_topic: a ``sensor_msgs/NavSatFix`` topic; None: no GPS.
         gps_sigma: one-sigma per axis (m) of fixes whose covariance type is unknown.
     """
@@ -94,7 +90,7 @@ def read_rosbag(
                 kind = _require_topic(path, types, gt_topic, (ODOMETRY_TYPE, *POSE_TYPES), "gt_topic")
                 row = _odometry_row if kind == ODOMETRY_TYPE else _pose_row
                 rows = _collect(reader, gt_topic, stamp, row, path, "gt_topic")
-                gt = _ground_truth(path, gt_topic, rows, use_twist and kind == ODOMETRY_TYPE, on_duplicate)
+                gt = _ground_truth(path, gt_topic, rows, use_twist and kind == ODOMETRY_TYPE, checks.on_duplicate)
             gps = None
             if gps_topic is not None:
                 _require_topic(path, types, gps_topic, (NAVSATFIX_TYPE,), "gps_topic")
@@ -104,7 +100,7 @@ def read_rosbag(
         raise DataError(path, "bag", f"cannot read: {err}") from err
     if stamp == "header" and imu.shape[0] > 1 and np.ptp(imu[:, 0]) == 0:
         raise DataError(path, f"{imu_topic}.stamp", "all header stamps are equal (unset?); pass stamp='bag'")
-    keep = check_timestamps(imu[:, 0], path, f"{imu_topic}.stamp", on_duplicate=on_duplicate)
+    keep = check_timestamps(imu[:, 0], path, f"{imu_topic}.stamp", on_duplicate=checks.on_duplicate)
     imu = imu[keep]
     return build_sequence(
         name or path.stem,
@@ -115,11 +111,7 @@ def read_rosbag(
         np.array([0.0, 0.0, -gravity]),
         gt=gt,
         gps=gps,
-        on_gap=on_gap,
-        crop_to_gt=crop_to_gt,
-        check_frame=check_frame,
-        check_units=check_units,
-        vel_window_s=vel_window_s,
+        checks=checks,
     )
 
 
@@ -204,7 +196,7 @@ def _gps(path: Path, topic: str, rows: np.ndarray, default_sigma: float) -> GpsF
     return GpsFixes(t=rows[:, 0], pos=pos, sigma=sigma)
 
 
-def _ground_truth(path: Path, topic: str, rows: np.ndarray, use_twist: bool, on_duplicate: str) -> GtSamples:
+def _ground_truth(path: Path, topic: str, rows: np.ndarray, use_twist: bool, on_duplicate: OnDuplicate) -> GtSamples:
     if rows.shape[0] < 2:
         raise DataError(path, topic, f"ground truth needs at least 2 messages, got {rows.shape[0]}")
     keep = check_timestamps(rows[:, 0], path, f"{topic}.stamp", on_duplicate=on_duplicate)

@@ -1,14 +1,17 @@
 """Shared reader machinery: table parsing with line numbers, time stamps, resampling, velocity, units and frame
-self-check (on real EuRoC V1_02 data), and the reader registry."""
+self-check (on real EuRoC V1_02 data), the readers' ReadChecks record, and the reader registry."""
 
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from learned_imu.datasets import READERS, read_sequence
-from learned_imu.datasets._assemble import GtSamples, differentiate_positions, resample_ground_truth
+from learned_imu.config import SequenceConfig
+from learned_imu.datasets import READERS, ReadChecks, read_sequence
+from learned_imu.datasets._assemble import VEL_WINDOW_S, GtSamples, differentiate_positions, resample_ground_truth
 from learned_imu.datasets._checks import (
     ACC_TOL,
     GYRO_TOL,
@@ -21,15 +24,21 @@ from learned_imu.datasets._checks import (
 )
 from learned_imu.datasets._rotations import matrix_to_quat_wxyz, quat_to_matrix
 from learned_imu.datasets._table import read_table
+from learned_imu.datasets.broad import read_broad
+from learned_imu.datasets.csv import read_csv
 from learned_imu.datasets.euroc import read_euroc
-from learned_imu.errors import DataError
+from learned_imu.datasets.kitti import read_kitti
+from learned_imu.datasets.kitti_raw import read_kitti_raw
+from learned_imu.errors import ConfigError, DataError, InputError
 
 
 @pytest.fixture(scope="module")
 def v102(shared_data):
     """Real V1_02 IMU excerpt with the official ground truth, read without the frame check."""
     return read_euroc(
-        shared_data / "euroc" / "V1_02_medium", imu_file="mav0/imu0/data_partial_first40s.csv", check_frame=False
+        shared_data / "euroc" / "V1_02_medium",
+        imu_file="mav0/imu0/data_partial_first40s.csv",
+        checks=ReadChecks(check_frame=False),
     )
 
 
@@ -190,6 +199,104 @@ def test_frame_self_check_without_a_fitting_convention(v102):
     rot = Rotation.random(len(v102), random_state=rng).as_matrix()
     with pytest.raises(DataError, match="none of the usual mistakes"):
         check_frame(v102.t, v102.gyro, v102.acc, rot, v102.gt.valid, v102.gravity, "imu.csv")
+
+
+# --- the readers' checks: one record, flat in configs and at the dispatcher ----------------------------------
+
+
+def test_read_checks_defaults_are_the_strict_ones():
+    checks = ReadChecks()
+    assert (checks.on_duplicate, checks.on_gap) == ("error", "error")
+    assert checks.crop_to_gt and checks.check_frame and checks.check_units
+    assert checks.vel_window_s == VEL_WINDOW_S == 0.05
+
+
+@pytest.mark.parametrize(
+    "field, value, problem",
+    [
+        ("on_duplicate", "keep", "expected one of error, drop, got 'keep'"),
+        ("on_gap", "skip", "expected one of error, keep, got 'skip'"),
+        ("on_gap", "split", "'split' is a step of its own: read with on_gap='keep', then .split_at_gaps()"),
+        ("crop_to_gt", "no", "expected True or False, got 'no'"),
+        ("check_frame", 0, "expected True or False, got 0"),
+        ("check_units", None, "expected True or False, got None"),
+        ("vel_window_s", 0.0, "expected a positive number of seconds, got 0.0"),
+        ("vel_window_s", -0.05, "expected a positive number of seconds, got -0.05"),
+        ("vel_window_s", float("nan"), "expected a positive number of seconds, got nan"),
+        ("vel_window_s", float("inf"), "expected a positive number of seconds, got inf"),
+        ("vel_window_s", "0.05", "expected a positive number of seconds, got '0.05'"),
+        ("vel_window_s", True, "expected a positive number of seconds, got True"),
+    ],
+)
+def test_read_checks_refuse_a_bad_value_naming_the_field(field, value, problem):
+    with pytest.raises(InputError) as err:
+        ReadChecks(**{field: value})
+    assert str(err.value) == f"ReadChecks.{field}: {problem}"
+
+
+def _imu_csv(path):
+    """200 Hz at rest: a duplicated stamp at row 100, 20 samples missing after row 200 (a 0.105-s gap)."""
+    t = np.arange(400) * 0.005
+    rows = np.concatenate([np.arange(101), np.arange(100, 201), np.arange(221, 400)])
+    imu = np.column_stack([t[rows], np.zeros((rows.size, 3)), np.tile([0.0, 0.0, 9.81], (rows.size, 1))])
+    np.savetxt(path, imu, delimiter=",", fmt="%.6f")
+    return path
+
+
+def test_flat_options_reach_the_reader_as_one_record(tmp_path, monkeypatch):
+    path = _imu_csv(tmp_path / "imu.csv")
+    with pytest.raises(DataError, match="duplicated time stamp"):
+        read_sequence("csv", path)
+    with pytest.raises(DataError, match="gap of 0.105 s"):
+        read_sequence("csv", path, on_duplicate="drop")
+    seen = {}
+
+    @functools.wraps(read_csv)  # check_options reads the signature through __wrapped__
+    def spy(path, **options):
+        seen.update(options)
+        return read_csv(path, **options)
+
+    monkeypatch.setitem(READERS, "csv", spy)
+    seq = read_sequence("csv", path, on_duplicate="drop", on_gap="keep", vel_window_s=0.1, name="rest")
+    assert seen == {"checks": ReadChecks(on_duplicate="drop", on_gap="keep", vel_window_s=0.1), "name": "rest"}
+    assert len(seq) == 380 and [len(p) for p in seq.split_at_gaps()] == [201, 179]
+
+
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        ({"on_gap": "skip"}, "options 'on_gap': expected one of error, keep, split, got 'skip'"),
+        ({"on_duplicate": 1}, "options 'on_duplicate': expected one of error, drop, got 1"),
+        ({"check_frame": "no"}, "options 'check_frame': expected bool, got 'no' (str)"),
+        ({"vel_window_s": 0}, "options 'vel_window_s': expected a positive number (s), got 0"),
+        ({"checks": {}}, "options 'checks': euroc has no such option; its options: check_frame, check_units, "
+                         "crop_to_gt, gravity, ground_truth, gt_file, imu_file, on_duplicate, on_gap, vel_window_s"),
+    ],
+)  # fmt: skip
+def test_config_options_are_checked_against_the_record(options, message):
+    with pytest.raises(ConfigError) as err:
+        SequenceConfig("euroc", "x", options)
+    assert str(err.value) == message
+
+
+@pytest.mark.parametrize(
+    "reader, dataset, field, value",
+    [
+        (read_kitti, "kitti", "crop_to_gt", False),
+        (read_kitti, "kitti", "check_frame", False),
+        (read_kitti, "kitti", "vel_window_s", 0.2),
+        (read_kitti_raw, "kitti_raw", "crop_to_gt", False),
+        (read_kitti_raw, "kitti_raw", "vel_window_s", 0.2),
+        (read_broad, "broad", "on_duplicate", "drop"),
+    ],
+)
+def test_a_check_the_reader_cannot_honour_is_refused(tmp_path, reader, dataset, field, value):
+    with pytest.raises(InputError, match=rf"^ReadChecks\.{field}: {reader.__name__} cannot honour {value!r} \("):
+        reader(tmp_path, checks=ReadChecks(**{field: value}))
+    with pytest.raises(DataError):  # at its default the field is no obstacle: the reader goes on to the path
+        reader(tmp_path / "missing", checks=ReadChecks(**{field: getattr(ReadChecks(), field)}))
+    with pytest.raises(ConfigError, match=rf"reader option '{field}': {dataset} has no such option"):
+        read_sequence(dataset, tmp_path, **{field: value})
 
 
 # --- registry -----------------------------------------------------------------------------------------------

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from learned_imu.datasets import ReadChecks
 from learned_imu.datasets._rotations import matrix_to_quat_wxyz
 from learned_imu.datasets.csv import read_csv
 from learned_imu.datasets.euroc import read_euroc
@@ -130,7 +131,7 @@ def test_whitespace_table_without_header_by_index(shared_data):
         time=0,
         acc=(2, 3, 4),
         gyro=(5, 6, 7),
-        on_gap="keep",
+        checks=ReadChecks(on_gap="keep"),
     ).split_at_gaps()
     assert [len(part) for part in seq] == [46967]  # the lone first row (1.92 s before the rest) is dropped
     assert seq[0].acc.mean(axis=0)[2] == pytest.approx(9.794, abs=1e-3)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from learned_imu.datasets import ReadChecks
 from learned_imu.datasets._assemble import differentiate_positions
 from learned_imu.datasets.euroc import read_euroc, read_euroc_ground_truth
 from learned_imu.errors import DataError
@@ -51,7 +52,7 @@ def test_mh01_velocity_from_tum_positions_agrees_with_the_imu(mh01):
 
 
 def test_mh01_without_crop_marks_imu_outside_gt_invalid(shared_data):
-    seq = read_euroc(shared_data / "euroc" / "MH_01_easy", crop_to_gt=False, check_frame=False)
+    seq = read_euroc(shared_data / "euroc" / "MH_01_easy", checks=ReadChecks(crop_to_gt=False, check_frame=False))
     assert len(seq) == MH01_IMU_ROWS
     assert int(seq.gt.valid.sum()) == MH01_GT_ROWS
     assert not seq.gt.valid[:216].any() and seq.gt.valid[216]  # GT starts 1.08 s after the IMU
@@ -144,7 +145,7 @@ def test_duplicated_imu_stamp_raises_or_is_dropped(shared_data, tmp_path):
     with pytest.raises(DataError, match="duplicated time stamp") as err:
         read_euroc(folder)
     assert err.value.line == 401 and err.value.field == "t"
-    assert len(read_euroc(folder, on_duplicate="drop")) == 1200
+    assert len(read_euroc(folder, checks=ReadChecks(on_duplicate="drop"))) == 1200
 
 
 def test_imu_gap_raises_or_splits(shared_data, tmp_path):
@@ -155,7 +156,7 @@ def test_imu_gap_raises_or_splits(shared_data, tmp_path):
     with pytest.raises(DataError, match="gap of 0.155 s") as err:
         read_euroc(folder)
     assert err.value.line == 801  # the first line after the gap
-    parts = read_euroc(folder, on_gap="keep").split_at_gaps()
+    parts = read_euroc(folder, checks=ReadChecks(on_gap="keep")).split_at_gaps()
     assert [p.name for p in parts] == ["MH_01_small_part0", "MH_01_small_part1"]
     assert sum(len(p) for p in parts) == 1200 - 30
     assert parts[0].t[-1] < parts[1].t[0] - 0.15

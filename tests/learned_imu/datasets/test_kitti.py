@@ -8,6 +8,7 @@ import sys
 import numpy as np
 import pytest
 
+from learned_imu.datasets import ReadChecks
 from learned_imu.datasets.kitti import GPS_SIGMA, read_kitti
 from learned_imu.errors import DataError
 
@@ -58,7 +59,8 @@ def test_keeping_the_first_row_reports_the_gap(shared_data):
     with pytest.raises(DataError, match="gap of 1.92 s") as err:
         read_kitti(shared_data / "kitti_gtsam", skip_first=False)
     assert err.value.line == 3  # header, first row, then the row after the gap
-    parts = read_kitti(shared_data / "kitti_gtsam", skip_first=False, on_gap="keep", gps_file=None).split_at_gaps()
+    kept = read_kitti(shared_data / "kitti_gtsam", skip_first=False, gps_file=None, checks=ReadChecks(on_gap="keep"))
+    parts = kept.split_at_gaps()
     assert len(parts) == 1 and len(parts[0]) == IMU_ROWS - 1  # a 1-sample part is not a sequence
 
 

@@ -59,7 +59,8 @@ def test_timestamp_anomalies_get_clear_errors_and_the_repair_options(shared_data
     parts = whole.split_at_gaps()
     assert len(parts) == 3 and all(np.all(np.diff(p.t) < 0.02) for p in parts)
     assert sum(len(p) for p in parts) == len(whole) and [p.name for p in parts][-1].endswith("_part2")
-    with pytest.raises(InputError, match="on_gap='split' is a step of its own"):  # readers return one sequence
+    # readers return one sequence
+    with pytest.raises(InputError, match=r"ReadChecks\.on_gap: 'split' is a step of its own"):
         read_sequence("kitti_raw", path, on_backward="drop", on_duplicate="drop", on_gap="split")
     spec = SequenceConfig("kitti_raw", str(path), {"on_backward": "drop", "on_duplicate": "drop", "on_gap": "split"})
     assert [len(p) for p in load_sequence(spec, ".")] == [len(p) for p in parts]  # a config's on_gap: split

@@ -10,6 +10,7 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 
+from learned_imu.datasets import ReadChecks
 from learned_imu.datasets._rotations import matrix_to_quat_wxyz
 from learned_imu.datasets.euroc import read_euroc
 from learned_imu.datasets.rosbag import read_rosbag
@@ -128,14 +129,14 @@ def test_bag_round_trip_matches_the_euroc_reader(bags, euroc, kind):
 
 def test_bare_mcap_file_and_bag_receive_time(bags, euroc):
     mcap = next(bags["ros2_mcap_odometry"].glob("*.mcap"))
-    seq = read_rosbag(mcap, stamp="bag", check_frame=False)
+    seq = read_rosbag(mcap, stamp="bag", checks=ReadChecks(check_frame=False))
     assert len(seq) == SAMPLES and seq.gt is None
     np.testing.assert_array_equal(seq.gyro, euroc["gyro"])
 
 
 def test_topic_choice_and_errors(bags, euroc):
     bag = bags["ros1_odometry"]
-    other = read_rosbag(bag, imu_topic="/zz_imu", check_units=False)
+    other = read_rosbag(bag, imu_topic="/zz_imu", checks=ReadChecks(check_units=False))
     np.testing.assert_array_equal(other.acc, 0.5 * euroc["acc"])
     with pytest.raises(DataError, match="has type sensor_msgs/msg/Imu") as err:
         read_rosbag(bag, gt_topic="/zz_imu")
@@ -173,7 +174,7 @@ def test_a_topic_without_messages_names_its_option(euroc, tmp_path):
             if topic not in conns:
                 conns[topic] = writer.add_connection(topic, msgtype, typestore=ts)
             writer.write(conns[topic], ns, ts.serialize_ros1(msg, msgtype))
-    assert len(read_rosbag(path, check_units=False)) == 300  # the IMU alone reads
+    assert len(read_rosbag(path, checks=ReadChecks(check_units=False))) == 300  # the IMU alone reads
     with pytest.raises(DataError, match="topic '/gt' has no messages") as err:
         read_rosbag(path, gt_topic="/gt")
     assert err.value.field == "gt_topic"

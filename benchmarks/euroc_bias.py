@@ -61,7 +61,7 @@ def main() -> None:
         from learned_imu.network.inference import correct
 
         model, config = model_from_checkpoint(args.checkpoint)
-        gravity = bool(config.get("train", {}).get("remove_gravity", False))
+        gravity = config.train.remove_gravity
         print(f"\n{args.checkpoint}: mean gyro correction, its std in time (mrad/s); ROE of the model | its mean as a")
         print("constant | the flight's own constant + the model's time-varying part")
         for name in TRAIN + TEST:

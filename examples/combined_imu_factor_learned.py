@@ -37,10 +37,9 @@ def run(seconds: float = 30.0, checkpoint: str | None = None, seed: int = 5) -> 
     seq = simulate("car", duration_s=seconds, error_model=ERRORS, seed=seed)
     noise, samples = NOISE_COV, (None, None)
     if checkpoint:
-        from learned_imu.network.checkpoint import model_from_checkpoint
-        from learned_imu.network.inference import correct
+        from learned_imu.network.inference import correct_from_checkpoint
 
-        out = correct(model_from_checkpoint(checkpoint)[0], seq)
+        out = correct_from_checkpoint(checkpoint, seq)
         noise, samples = (out.gyro_cov.numpy(), out.acc_cov.numpy()), (out.gyro.numpy(), out.acc.numpy())
     path = Path(tempfile.mkdtemp()) / "learned.npz"
     index = keyframes_every(seq, 0.5)

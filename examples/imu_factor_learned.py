@@ -32,10 +32,9 @@ def run(seconds: float = 12.0, checkpoint: str | None = None, relinearise: int =
     seq = simulate("car", duration_s=seconds + 0.5, error_model=ERRORS, seed=seed)
     gyro, acc, gyro_cov, acc_cov = seq.gyro, seq.acc, *NOISE_COV
     if checkpoint:  # the learned model's corrected samples and per-sample noise
-        from learned_imu.network.checkpoint import model_from_checkpoint
-        from learned_imu.network.inference import correct
+        from learned_imu.network.inference import correct_from_checkpoint
 
-        out = correct(model_from_checkpoint(checkpoint)[0], seq)
+        out = correct_from_checkpoint(checkpoint, seq)
         gyro, acc, gyro_cov, acc_cov = (x.numpy() for x in (out.gyro, out.acc, out.gyro_cov, out.acc_cov))
     per_second = int(round(1.0 / float(np.median(seq.dt))))
     starts = np.arange(0, int(seconds) * per_second + 1, per_second)  # keyframe k at sample starts[k]

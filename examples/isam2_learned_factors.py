@@ -27,7 +27,6 @@ from factors import GpsFactor, from_export, gps_noise
 from fusion.pgo import gps_for
 from learned_imu.datasets.simulator import simulate
 from learned_imu.export import export_preintegration, keyframes_every
-from learned_imu.network.inference import correct
 
 X, V, B = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V, gtsam.symbol_shorthand.B
 GPS_SIGMA_M = 0.5
@@ -45,9 +44,9 @@ def main() -> None:
     gps, truth = gps_for(seq, 1.0, GPS_SIGMA_M, seed=0)
     noise, samples = RAW_DENSITIES, (None, None)
     if args.checkpoint:
-        from learned_imu.network.checkpoint import model_from_checkpoint
+        from learned_imu.network.inference import correct_from_checkpoint
 
-        out = correct(model_from_checkpoint(args.checkpoint)[0], seq)
+        out = correct_from_checkpoint(args.checkpoint, seq)
         noise, samples = (out.gyro_cov.numpy(), out.acc_cov.numpy()), (out.gyro.numpy(), out.acc.numpy())
     path = Path(tempfile.mkdtemp()) / "learned.npz"
     export_preintegration(path, seq, keyframes_every(seq, 0.5), *noise, *samples)

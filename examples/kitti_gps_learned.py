@@ -34,10 +34,9 @@ def run(seconds: float | None = None, checkpoint: str | None = None, gps_skip: i
     gyro, acc = seq.gyro, seq.acc
     gyro_cov, acc_cov = np.full_like(gyro, GYRO_SIGMA**2), np.full_like(acc, ACC_SIGMA**2)
     if checkpoint:
-        from learned_imu.network.checkpoint import model_from_checkpoint
-        from learned_imu.network.inference import correct
+        from learned_imu.network.inference import correct_from_checkpoint
 
-        out = correct(model_from_checkpoint(checkpoint)[0], seq)
+        out = correct_from_checkpoint(checkpoint, seq)
         gyro, acc, gyro_cov, acc_cov = (x.numpy() for x in (out.gyro, out.acc, out.gyro_cov, out.acc_cov))
     fixes = seq.gps
     end = len(fixes.t) if seconds is None else int(np.searchsorted(fixes.t, fixes.t[0] + seconds))

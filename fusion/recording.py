@@ -41,6 +41,7 @@ import rerun.blueprint as rrb
 
 from fusion import colors
 from learned_imu.datasets._rotations import matrix_to_quat_wxyz
+from learned_imu.training.train import EpochLog
 
 TIMELINE = "time"
 SIGMA_SCALE = 3.0  # ellipsoid half-sizes and error bounds in standard deviations
@@ -293,12 +294,13 @@ TRAINING_SERIES = (
 )  # fmt: skip
 
 
-def write_training_recording(folder: str | Path, history: list[dict]) -> Path:
+def write_training_recording(folder: str | Path, history: list[EpochLog]) -> Path:
     """``folder/training.rrd``: every epoch's losses and validation metrics (``metrics.jsonl`` entries), on the
     time line ``epoch`` (1 = the first). Written whole and atomically, so it is a valid recording whenever a viewer
     opens it, resumed runs included; ``learned_imu.training.experiment.train_run(on_epoch=...)`` calls it after each
     epoch."""
     path = Path(folder) / "training.rrd"
+    history = [entry.to_dict() for entry in history]
     epochs = np.array([entry["epoch"] + 1 for entry in history], dtype=np.int64)
     views = []
     with _saved(path, rr.RecordingStream("airimu-training", recording_id=str(Path(folder).resolve()))) as rec:

@@ -73,8 +73,8 @@ import torch
 from learned_imu.datasets.simulator import simulate
 from learned_imu.datasets._rotations import matrix_to_quat_wxyz
 from learned_imu.export import export_preintegration, keyframes_every
-from learned_imu.network.checkpoint import build_model, save_checkpoint
-from learned_imu.config import ModelConfig
+from learned_imu.network.checkpoint import build_model
+from learned_imu.config import DataConfig, ExperimentConfig, ModelConfig, SequenceConfig, to_dict
 
 folder = Path(sys.argv[1])
 seq = simulate("drone", duration_s=30.0, rate_hz=100.0, gps_rate_hz=1.0, gps_sigma_m=0.1, seed=1)
@@ -122,8 +122,11 @@ model = build_model(ModelConfig(conv_channels=(8, 16), gru_sizes=(16,), decoder_
 state = model.state_dict()
 name = next(k for k, v in state.items() if v.is_floating_point())
 state[name].view(-1)[0] = float("nan")
-save_checkpoint(folder / "nan.pt", {"model": {"conv_channels": [8, 16], "gru_sizes": [16], "decoder_hidden": 16}},
-                {"model": state}, {})
+config = to_dict(ExperimentConfig("nan", DataConfig((SequenceConfig("simulator"),), (SequenceConfig("simulator"),)),
+                                  model=ModelConfig(conv_channels=(8, 16), gru_sizes=(16,), decoder_hidden=16)))
+# format version 1 written by hand: both trees read it (the "before" tree reads only version 1)
+torch.save({"format": "airimu-checkpoint", "version": 1, "config": config, "trainer": {"model": state}, "best": {}},
+           folder / "nan.pt")
 print(name)
 '''
 

@@ -95,3 +95,15 @@ def factor_with_bias_from_samples(seed: int, n: int = 200, dt: float = 0.005):
     for k in range(n):
         pim.integrateMeasurement(acc[k], gyro[k], dt)
     return ours, pim
+
+
+def write_checkpoint(path, model_config, weights: dict, remove_gravity: bool = False) -> Path:
+    """A hand-made checkpoint (current format): ``weights`` of a model built from ``model_config``, inside a minimal
+    whole config (one simulated sequence to train and validate on)."""
+    from learned_imu.config import DataConfig, ExperimentConfig, SequenceConfig, TrainConfig
+    from learned_imu.network.checkpoint import Checkpoint, save_checkpoint
+
+    simulated = (SequenceConfig("simulator"),)
+    config = ExperimentConfig("hand-made", DataConfig(train=simulated, val=simulated), model=model_config,
+                              train=TrainConfig(remove_gravity=remove_gravity))  # fmt: skip
+    return save_checkpoint(path, Checkpoint(config, {"model": weights}))

@@ -26,7 +26,8 @@ from learned_imu.datasets.simulator import simulate
 from learned_imu.errors import ConfigError, DataError, InputError
 from learned_imu.export import export_preintegration, keyframes_every
 from learned_imu.io import atomic_file, output_folder, write_json_atomic
-from learned_imu.network.checkpoint import build_model, model_from_checkpoint, save_checkpoint
+from learned_imu.network.checkpoint import build_model, model_from_checkpoint
+from tests.helpers import write_checkpoint
 
 CSV_KEYS = dict(header=True, time="t", gyro=["gx", "gy", "gz"], acc=["ax", "ay", "az"])
 GT_KEYS = dict(gt_pos=["px", "py", "pz"], gt_quat=["qw", "qx", "qy", "qz"], gt_vel=["vx", "vy", "vz"])
@@ -352,8 +353,7 @@ def test_a_checkpoint_with_nan_weights_is_named(tmp_path, capsys, monkeypatch):
     state = model.state_dict()
     name = next(k for k, v in state.items() if v.is_floating_point())
     state[name].view(-1)[0] = float("nan")
-    path = save_checkpoint(tmp_path / "nan.pt", {"model": {"conv_channels": [8, 16], "gru_sizes": [16],
-                                                           "decoder_hidden": 16}}, {"model": state}, {})  # fmt: skip
+    path = write_checkpoint(tmp_path / "nan.pt", config, state)
     with pytest.raises(DataError, match=f"trainer.model.{name}.*NaN or Inf weights"):
         model_from_checkpoint(path)
     code, err = cli(capsys, monkeypatch, "export-model", "--checkpoint", path, "--format", "torchscript", "--out",

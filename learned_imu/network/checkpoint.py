@@ -1,21 +1,26 @@
 """Checkpoints: one ``.pt`` per save, written atomically and read back with ``torch.load(weights_only=True)``.
 
-Contents (plain tensors, numbers, strings, lists and dicts only, so the safe loader accepts them):
+In code a checkpoint is a ``Checkpoint`` record (typed config, ``BestEpoch``, ``TrainedOn``); on disk it is a plain
+dict of tensors, numbers, strings, lists and dicts only, so the safe loader accepts it:
 
-- ``format`` = ``"airimu-checkpoint"``, ``version`` = 1;
+- ``format`` = ``"airimu-checkpoint"``, ``version`` (``VERSION`` when written; ``READABLE`` are read);
 - ``config``: the resolved ``ExperimentConfig`` as a plain dict (``learned_imu.config.to_dict``), from which
   the model is rebuilt without the YAML file;
-- ``trainer``: ``Trainer.state_dict()`` (model, optimiser, schedule, RNG states, epochs done);
-- ``best``: the best validation record so far (``BestEpoch.to_dict()``: the epoch's metrics log entry plus what
-  the calibration added; empty before the first epoch);
-- ``trained_on`` (optional; absent in files written before it): ``rate_hz``, the median IMU rate of the training
-  sequences, and ``datasets``, their reader names. ``model_from_checkpoint`` hands it to the model
-  (``model.trained_on``), and ``learned_imu.network.inference.correct`` refuses data whose rate differs by more than
-  ``MAX_RATE_MISMATCH``.
+- ``trainer``: ``Trainer.state_dict()`` (model weights under ``model``, optimiser, schedule, RNG states, epochs done);
+- ``best``: the best validation record so far (``BestEpoch.to_dict()``; empty before the first epoch);
+- ``trained_on``: ``rate_hz``, the median IMU rate of the training sequences, and ``datasets``, their reader names
+  (None when unknown). ``model_from_checkpoint`` hands it to the model (``model.trained_on``), and
+  ``learned_imu.network.inference.correct`` refuses data whose rate differs by more than ``MAX_RATE_MISMATCH``.
+- ``written_by``: the versions of ``airimu`` and ``torch`` that wrote the file (a file from a newer toolkit is
+  refused naming the version it needs).
+
+Versions: 1 (written before 2026-12-02) has no ``written_by``, and ``trained_on`` only in files written after it
+was introduced; both read as absent. 2 always writes both keys.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import pickle
 import zipfile
@@ -24,8 +29,8 @@ from pathlib import Path
 
 import torch
 
-from learned_imu.config import ModelConfig, from_dict, renamed
-from learned_imu.errors import DataError
+from learned_imu.config import ExperimentConfig, ModelConfig, from_dict, renamed, to_dict
+from learned_imu.errors import ConfigError, DataError
 from learned_imu.io import atomic_file
 from learned_imu.network.model import AirImuNet
 
@@ -72,26 +77,74 @@ class BestEpoch:
 
 CALIBRATION_FIELDS = ("calibrated", "calibration_nll", "noise_scales")  # what calibrating best.pt adds
 FORMAT = "airimu-checkpoint"
-VERSION = 1
+VERSION = 2
+READABLE = (1, 2)
 _REQUIRED = ("format", "version", "config", "trainer", "best")
 
 
-def save_checkpoint(
-    path: str | Path, config: dict, trainer_state: dict, best: BestEpoch | dict | None, trained_on: dict | None = None
-) -> Path:
-    """Write a checkpoint atomically (a crash leaves the previous file intact); ``best`` a record, or a stored dict
-    as read (hand-made files: ``{}``)."""
-    best = best.to_dict() if isinstance(best, BestEpoch) else dict(best or {})
-    payload = {"format": FORMAT, "version": VERSION, "config": config, "trainer": trainer_state, "best": best}
-    if trained_on is not None:
-        payload["trained_on"] = trained_on
+@dataclass(frozen=True)
+class TrainedOn:
+    """What a model was trained on: the median IMU rate of its training sequences (Hz) and their reader names."""
+
+    rate_hz: float
+    datasets: tuple[str, ...]
+
+    def to_dict(self) -> dict:
+        return {"rate_hz": self.rate_hz, "datasets": list(self.datasets)}
+
+
+@dataclass(frozen=True, eq=False)
+class Checkpoint:
+    """A checkpoint's contents (see the module docstring). ``trainer`` is ``Trainer.state_dict()``, the weights
+    under ``"model"``; ``version`` and ``written_by`` are the file's as read (saving writes this code's)."""
+
+    config: ExperimentConfig
+    trainer: dict
+    best: BestEpoch | None = None
+    trained_on: TrainedOn | None = None
+    version: int = VERSION
+    written_by: dict[str, str] = field(default_factory=dict)
+
+    def with_weights(self, weights: dict) -> Checkpoint:
+        """This checkpoint with other model weights (a calibrated or rescaled model), the rest of the trainer kept."""
+        return dataclasses.replace(self, trainer={**self.trainer, "model": weights})
+
+    def model(self, source: str | Path = "checkpoint") -> AirImuNet:
+        """The network of the stored config with the stored weights, in eval mode, ``trained_on`` attached; weights
+        that do not fit the config or hold NaN/Inf are a ``DataError`` naming ``source`` (the file)."""
+        model = build_model(self.config.model)
+        try:
+            model.load_state_dict(self.trainer["model"])
+        except (KeyError, RuntimeError) as error:
+            raise DataError(source, "trainer.model", f"weights do not fit the stored model config ({error})") from error
+        for name, tensor in model.state_dict().items():
+            if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
+                raise DataError(
+                    source, f"trainer.model.{name}", "holds NaN or Inf weights (a diverged or damaged model)"
+                )
+        model.trained_on = self.trained_on
+        return model.eval()
+
+
+def save_checkpoint(path: str | Path, checkpoint: Checkpoint) -> Path:
+    """Write ``checkpoint`` atomically (a crash leaves the previous file intact) in format ``VERSION``."""
+    payload = {
+        "format": FORMAT,
+        "version": VERSION,
+        "config": to_dict(checkpoint.config),
+        "trainer": checkpoint.trainer,
+        "best": checkpoint.best.to_dict() if checkpoint.best is not None else {},
+        "trained_on": checkpoint.trained_on.to_dict() if checkpoint.trained_on is not None else None,
+        "written_by": _software(),
+    }
     with atomic_file(path, "wb") as f:
         torch.save(payload, f)
     return Path(path)
 
 
-def load_checkpoint(path: str | Path) -> dict:
-    """Read and validate a checkpoint; a corrupt, foreign or other-version file is a ``DataError`` naming it."""
+def load_checkpoint(path: str | Path) -> Checkpoint:
+    """Read and validate a checkpoint (any version in ``READABLE``); a corrupt, foreign or newer file, or one whose
+    stored config this code cannot read, is a ``DataError`` naming it and the field."""
     path = Path(path)
     if not path.is_file():
         raise DataError(path, "file", "checkpoint not found")
@@ -102,31 +155,76 @@ def load_checkpoint(path: str | Path) -> dict:
         raise DataError(path, "file", f"not a readable torch checkpoint ({first_line})") from error
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise DataError(path, "format", f"not an AirIMU checkpoint (expected format '{FORMAT}')")
-    if payload.get("version") != VERSION:
-        raise DataError(path, "version", f"checkpoint version {payload.get('version')!r}, this code reads {VERSION}")
+    version = payload.get("version")
+    if version not in READABLE:
+        written_by = payload.get("written_by")
+        writer = written_by.get("airimu", "unknown") if isinstance(written_by, dict) else "unknown"
+        readable = ", ".join(map(str, READABLE))
+        raise DataError(
+            path, "version", f"checkpoint version {version!r} (written by airimu {writer}); this code "
+            f"(airimu {_software()['airimu']}) reads versions {readable}: upgrade airimu to read it",
+        )  # fmt: skip
     missing = [key for key in _REQUIRED if key not in payload]
     if missing:
         raise DataError(path, missing[0], "missing from the checkpoint")
-    if isinstance(payload["config"], dict):  # files written before the naming rule keep loading
-        payload["config"] = renamed(payload["config"])
-    return payload
+    return Checkpoint(
+        config=_stored_config(payload["config"], path),
+        trainer=_mapping(payload["trainer"], path, "trainer"),
+        best=_best(payload["best"], path),
+        trained_on=_trained_on(payload.get("trained_on"), path),
+        version=int(version),
+        written_by=dict(payload.get("written_by") or {}),
+    )
 
 
-def model_from_checkpoint(path: str | Path) -> tuple[AirImuNet, dict]:
-    """The trained model (eval mode) and the resolved config dict stored with it."""
-    payload = load_checkpoint(path)
-    config = payload["config"]
-    model_config = from_dict(ModelConfig, config.get("model", {}), source=f"{path} (stored config)", where="model")
-    model = build_model(model_config)
+def model_from_checkpoint(path: str | Path) -> tuple[AirImuNet, ExperimentConfig]:
+    """The trained model (eval mode, ``trained_on`` attached) and the resolved config stored with it."""
+    checkpoint = load_checkpoint(path)
+    return checkpoint.model(path), checkpoint.config
+
+
+def _stored_config(data, path: Path) -> ExperimentConfig:
+    if not isinstance(data, dict):
+        raise DataError(path, "config", f"expected a mapping, got {type(data).__name__}")
+    try:  # renamed: files written before the naming rule keep loading
+        return from_dict(ExperimentConfig, renamed(data), source="stored config")
+    except ConfigError as error:
+        raise DataError(path, "config", f"not readable by this version of airimu ({error})") from None
+
+
+def _mapping(data, path: Path, key: str) -> dict:
+    if not isinstance(data, dict):
+        raise DataError(path, key, f"expected a mapping, got {type(data).__name__}")
+    return data
+
+
+def _best(data, path: Path) -> BestEpoch | None:
     try:
-        model.load_state_dict(payload["trainer"]["model"])
-    except (KeyError, RuntimeError) as error:
-        raise DataError(path, "trainer.model", f"weights do not fit the stored model config ({error})") from error
-    for name, tensor in model.state_dict().items():
-        if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
-            raise DataError(path, f"trainer.model.{name}", "holds NaN or Inf weights (a diverged or damaged model)")
-    model.trained_on = payload.get("trained_on")
-    return model.eval(), config
+        return BestEpoch.from_dict(_mapping(data, path, "best"))
+    except (TypeError, KeyError, ValueError) as error:
+        raise DataError(path, "best", f"expected epoch and val_loss ({error!r})") from None
+
+
+def _trained_on(data, path: Path) -> TrainedOn | None:
+    if data is None:
+        return None
+    try:
+        rate, datasets = float(data["rate_hz"]), tuple(str(name) for name in data["datasets"])
+    except (TypeError, KeyError, ValueError) as error:
+        raise DataError(path, "trained_on", f"expected rate_hz and datasets ({error!r})") from None
+    if not (math.isfinite(rate) and rate > 0):
+        raise DataError(path, "trained_on.rate_hz", f"must be a positive rate in Hz, got {rate!r}")
+    return TrainedOn(rate, datasets)
+
+
+def _software() -> dict[str, str]:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        airimu = version("airimu")
+    except PackageNotFoundError:  # a source tree that is not installed
+        airimu = "unknown"
+    return {"airimu": airimu, "torch": str(torch.__version__)}  # a str subclass the safe loader refuses
 
 
 def build_model(config: ModelConfig) -> AirImuNet:

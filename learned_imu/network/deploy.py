@@ -156,7 +156,7 @@ def export_checkpoint(checkpoint: str | Path, path: str | Path, format: str) -> 
     if format not in FORMATS:  # before loading: a typo should not cost a checkpoint load
         raise InputError(f"export_checkpoint: format must be one of {', '.join(FORMATS)}; got {format!r}")
     model, config = model_from_checkpoint(checkpoint)
-    if bool(config.get("train", {}).get("remove_gravity", False)):
+    if config.train.remove_gravity:
         raise DataError(
             checkpoint,
             "config.train.remove_gravity",

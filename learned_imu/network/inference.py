@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from learned_imu.datasets.sequence import ImuSequence
-from learned_imu.errors import InputError
+from learned_imu.errors import DataError, InputError
 from learned_imu.network.model import AirImuNet, Correction, correct_sequence, device_of
 
 MAX_RATE_MISMATCH = 0.1  # relative difference of sample rates a model is applied across
@@ -54,7 +54,7 @@ def correct_from_checkpoint(checkpoint: str | Path, sequence: ImuSequence) -> Co
     from learned_imu.network.checkpoint import model_from_checkpoint
 
     model, config = model_from_checkpoint(checkpoint)
-    return correct(model, sequence, bool(config.get("train", {}).get("remove_gravity", False)))
+    return correct(model, sequence, config.train.remove_gravity)
 
 
 @dataclass(frozen=True)
@@ -72,28 +72,24 @@ def scale_checkpoint_noise(checkpoint: str | Path, sequence: ImuSequence, out: s
     """Scale ``checkpoint``'s noise densities (one factor per sensor) to ``sequence``'s windows by maximum likelihood
     and write the result to ``out`` (may be ``checkpoint`` itself; the scales accumulate in ``best.noise_scales``).
     ``sequence`` must have ground truth and be held out (neither trained nor evaluated on)."""
-    from learned_imu.config import ExperimentConfig, from_dict
-    from learned_imu.network.checkpoint import BestEpoch, load_checkpoint, model_from_checkpoint, save_checkpoint
+    from learned_imu.network.checkpoint import load_checkpoint, save_checkpoint
     from learned_imu.training.experiment import build_windows
     from learned_imu.training.train import noise_residuals, scale_noise
 
     if sequence.gt is None:
         where = sequence.source or sequence.name
         raise InputError(f"{where}: the sequence has no ground truth; scaling the noise needs it")
-    payload = load_checkpoint(checkpoint)
-    model, config = model_from_checkpoint(checkpoint)
-    cfg = from_dict(ExperimentConfig, config, source=f"{checkpoint} (stored config)")
-    residuals = noise_residuals(model, build_windows([sequence], cfg, None))
+    stored = load_checkpoint(checkpoint)
+    if stored.best is None:  # the scales are kept in the best-epoch record
+        raise DataError(checkpoint, "best", "the checkpoint has no trained epoch; scale the noise of a trained one")
+    model = stored.model(checkpoint)
+    residuals = noise_residuals(model, build_windows([sequence], stored.config, None))
     scales = residuals.best_scales()
     before, after = residuals.nse(), residuals.nse(*scales)
     scale_noise(model, *scales)
-    stored = BestEpoch.from_dict(payload["best"])  # None in a hand-made file without a best epoch
-    previous = (stored.noise_scales if stored else None) or (1.0, 1.0)
-    total = (previous[0] * float(scales[0]), previous[1] * float(scales[1]))
-    best = replace(stored, noise_scales=total) if stored else {"noise_scales": list(total)}
-    written = save_checkpoint(
-        out, config, {**payload["trainer"], "model": model.state_dict()}, best, payload.get("trained_on")
-    )
+    previous = stored.best.noise_scales or (1.0, 1.0)
+    best = replace(stored.best, noise_scales=(previous[0] * float(scales[0]), previous[1] * float(scales[1])))
+    written = save_checkpoint(out, replace(stored, best=best).with_weights(model.state_dict()))
     return NoiseScaling((float(scales[0]), float(scales[1])), before, after, Path(written))
 
 
@@ -105,12 +101,12 @@ def check_rate(model: AirImuNet, sequence: ImuSequence) -> None:
 
 def check_times_rate(model: AirImuNet, t: np.ndarray, where: str) -> None:
     """``check_rate`` for sample times ``t`` (s), the error naming ``where`` (a file, or a stream's method)."""
-    trained = getattr(model, "trained_on", None)
-    if not trained or len(t) < 2:
+    trained = getattr(model, "trained_on", None)  # a TrainedOn record (learned_imu.network.checkpoint) or None
+    if trained is None or len(t) < 2:
         return
     rate = 1.0 / float(np.median(np.diff(t)))
-    if abs(rate / trained["rate_hz"] - 1.0) > MAX_RATE_MISMATCH:
+    if abs(rate / trained.rate_hz - 1.0) > MAX_RATE_MISMATCH:
         raise InputError(
-            f"{where}: IMU sampled at {rate:.1f} Hz, but the model was trained at {trained['rate_hz']:.1f} Hz "
-            f"({', '.join(trained['datasets'])}): resample the IMU to that rate or train a model on data at this rate"
+            f"{where}: IMU sampled at {rate:.1f} Hz, but the model was trained at {trained.rate_hz:.1f} Hz "
+            f"({', '.join(trained.datasets)}): resample the IMU to that rate or train a model on data at this rate"
         )

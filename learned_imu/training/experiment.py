@@ -37,15 +37,23 @@ import torch
 from learned_imu.config import ExperimentConfig, SequenceConfig, resolve_device, save_config, to_dict
 from learned_imu.datasets import SIMULATOR, SPLIT
 from learned_imu.datasets.sequence import ImuSequence
-from learned_imu.errors import ConfigError, InputError
+from learned_imu.errors import ConfigError, DataError, InputError
 from learned_imu.evaluation.evaluate import Evaluation, evaluate
 from learned_imu.io import atomic_file, folder_lock, remove_temporaries
-from learned_imu.network.checkpoint import CALIBRATION_FIELDS, BestEpoch, build_model, load_checkpoint, save_checkpoint
+from learned_imu.network.checkpoint import (
+    CALIBRATION_FIELDS,
+    BestEpoch,
+    Checkpoint,
+    TrainedOn,
+    build_model,
+    load_checkpoint,
+    save_checkpoint,
+)
 from learned_imu.network.inference import correct
 from learned_imu.network.model import AirImuNet
 from learned_imu.training.distributed import World, agree, barrier, check_batch_size, is_writer
 from learned_imu.training.losses import LossWeights
-from learned_imu.training.train import Trainer, calibrate_uncertainty, fit_noise_scales, scale_noise
+from learned_imu.training.train import EpochLog, Trainer, calibrate_uncertainty, fit_noise_scales, scale_noise
 from learned_imu.training.windows import Windows, concat_windows, make_windows
 
 log = logging.getLogger(__name__)
@@ -131,7 +139,7 @@ def train_run(
     folder: str | Path,
     progress: bool = True,
     world: World | None = None,
-    on_epoch: Callable[[Path, list[dict]], None] | None = None,
+    on_epoch: Callable[[Path, list[EpochLog]], None] | None = None,
 ) -> RunSummary:
     """Train (or resume) the run in ``folder``; see the module docstring. ``loss.covariance = 0`` trains
     without the covariance loss (and skips the covariance propagation). ``world``: this process's rank in a
@@ -154,7 +162,6 @@ def _train_run(config: ExperimentConfig, folder: Path, progress: bool, world: Wo
         folder.mkdir(parents=True, exist_ok=True)
         for stale in remove_temporaries(folder, ["*"]):  # a killed run's unfinished writes (the folder is locked)
             log.warning("removed %s, left by an interrupted write", stale)
-    cfg_dict = to_dict(config)
     train_seqs = load_sequences(config.data.train, config.data.root)
     val_seqs = load_sequences(config.data.val, config.data.root)
     t = config.train
@@ -167,77 +174,74 @@ def _train_run(config: ExperimentConfig, folder: Path, progress: bool, world: Wo
         use_covariance=use_cov, plateau_factor=t.plateau_factor, plateau_patience=t.plateau_patience,
         seed=t.seed, world=world, device=resolve_device(t.device),
     )  # fmt: skip
-    trained_on = {
-        "rate_hz": float(np.median([1.0 / float(np.median(np.diff(s.t))) for s in train_seqs])),
-        "datasets": sorted({spec.dataset for spec in config.data.train}),
-    }
-    history, best = _resume(folder, cfg_dict, trainer)
+    trained_on = TrainedOn(
+        rate_hz=float(np.median([1.0 / float(np.median(np.diff(s.t))) for s in train_seqs])),
+        datasets=tuple(sorted({spec.dataset for spec in config.data.train})),
+    )
+    history, best = _resume(folder, config, trainer)
     if not agree(trainer.epochs_done, world):
         raise ConfigError(f"{folder}: the ranks read different last.pt files; put the run folder on a shared disk")
     if writer:
         save_config(folder / "config.yaml", config)
-    clock = time.perf_counter() - (history[-1]["seconds"] if history else 0.0)
+    clock = time.perf_counter() - ((history[-1].seconds or 0.0) if history else 0.0)
     while trainer.epochs_done < t.epochs and not _stalled(history, best, t.early_stop_patience):
-        entry = asdict(trainer.epoch(on_batch=_progress_bar(progress and writer, trainer, history)))
+        entry = trainer.epoch(on_batch=_progress_bar(progress and writer, trainer, history))
         if writer:  # the other ranks go on to the next epoch and wait for rank 0 in its first step
             metrics = [evaluate_model(model, s, config) for s in val_seqs]
-            entry["val_roe_deg"] = float(np.mean([m.roe_deg for m in metrics]))
-            entry["val_rpe_rmse_m"] = float(np.mean([m.rpe_rmse_m for m in metrics]))
-        entry["seconds"] = time.perf_counter() - clock
+            entry = replace(entry, val_roe_deg=float(np.mean([m.roe_deg for m in metrics])),
+                            val_rpe_rmse_m=float(np.mean([m.rpe_rmse_m for m in metrics])))  # fmt: skip
+        entry = replace(entry, seconds=time.perf_counter() - clock)
         history.append(entry)
-        improved = best is None or entry["val_loss"] < best.val_loss  # val_loss: rank 0's, on every rank
-        best = BestEpoch.from_dict(entry) if improved else best
+        improved = best is None or entry.val_loss < best.val_loss  # val_loss: rank 0's, on every rank
+        best = BestEpoch.from_dict(entry.to_dict()) if improved else best
         if writer:
-            _write_epoch(folder, cfg_dict, trainer, history, best, improved, trained_on)
+            _write_epoch(folder, Checkpoint(config, trainer.state_dict(), best, trained_on), history, improved)
             if on_epoch is not None:
                 on_epoch(folder, history)
             if progress:
                 _epoch_line(config.name, entry, t.epochs)
-        log.info("%s epoch %d: %s", config.name, entry["epoch"], json.dumps(entry))
+        log.info("%s epoch %d: %s", config.name, entry.epoch, json.dumps(entry.to_dict()))
     if writer and use_cov:
-        _finish_calibration(folder, cfg_dict, trainer, best, t, trained_on)
+        _finish_calibration(folder, Checkpoint(config, {}, best, trained_on), trainer, t)
     barrier(world)  # every rank returns once the folder is complete
     return RunSummary(folder, trainer.epochs_done, best.epoch, best.val_loss, best.seconds)
 
 
-def _write_epoch(
-    folder: Path, cfg_dict: dict, trainer: Trainer, history: list[dict], best: BestEpoch, improved: bool,
-    trained_on: dict,
-):  # fmt: skip
+def _write_epoch(folder: Path, checkpoint: Checkpoint, history: list[EpochLog], improved: bool) -> None:
     """An epoch's files: ``best.pt`` if it improved, the metrics log, ``last.pt``."""
     if improved:
-        save_checkpoint(folder / "best.pt", cfg_dict, trainer.state_dict(), best, trained_on)
+        save_checkpoint(folder / "best.pt", checkpoint)
     # the log before last.pt: a resume cuts the log back to last.pt's epochs, so a kill between the two
     # writes repeats this epoch; the other order would lose its line from the log
     _write_metrics(folder / "metrics.jsonl", history)
-    save_checkpoint(folder / "last.pt", cfg_dict, trainer.state_dict(), best, trained_on)
+    save_checkpoint(folder / "last.pt", checkpoint)
 
 
-def _finish_calibration(folder: Path, cfg_dict: dict, trainer: Trainer, best: BestEpoch, t, trained_on: dict) -> None:
+def _finish_calibration(folder: Path, run: Checkpoint, trainer: Trainer, t) -> None:
     """Calibrate the best checkpoint if it is not yet (a finished run asked for the scaling later gets it then; the
-    second stage is never repeated). ``best.pt`` is written before ``last.pt``: after a kill between the two, the
-    record in ``best.pt`` says what was done, and only ``last.pt`` is brought up to date."""
-    stored = BestEpoch.from_dict(load_checkpoint(folder / "best.pt")["best"])
-    if stored is not None and stored.epoch == best.epoch:
-        best = replace(best, **{name: getattr(stored, name) for name in CALIBRATION_FIELDS})
+    second stage is never repeated). ``run``: this run's config, best epoch and ``trained_on`` (no weights).
+    ``best.pt`` is written before ``last.pt``: after a kill between the two, the record in ``best.pt`` says what was
+    done, and only ``last.pt`` is brought up to date."""
+    stored = load_checkpoint(folder / "best.pt")
+    best = run.best
+    if stored.best is not None and stored.best.epoch == best.epoch:
+        best = replace(best, **{name: getattr(stored.best, name) for name in CALIBRATION_FIELDS})
     stage = t.calibration_steps > 0 and not best.calibrated
     scale = t.scale_noise_on_val and best.noise_scales is None
     if stage or scale:
-        _calibrate_best(folder, cfg_dict, trainer, best, t, stage, scale, trained_on)
-        return
+        trainer.model.load_state_dict(stored.trainer["model"])
+        best = _calibrate(trainer, replace(best, calibrated=True), t, stage, scale)
+        save_checkpoint(folder / "best.pt", replace(run, trainer=stored.trainer, best=best).with_weights(
+            trainer.model.state_dict()))  # fmt: skip
+        log.info("calibrated the noise of %s", folder / "best.pt")
     last = load_checkpoint(folder / "last.pt")
-    if BestEpoch.from_dict(last["best"]) != best:
-        save_checkpoint(folder / "last.pt", cfg_dict, last["trainer"], best, trained_on)
+    if last.best != best:
+        save_checkpoint(folder / "last.pt", replace(run, trainer=last.trainer, best=best))
 
 
-def _calibrate_best(
-    folder: Path, cfg_dict: dict, trainer: Trainer, best: BestEpoch, t, stage: bool, scale: bool, trained_on: dict
-) -> None:
-    """Second stage on the best checkpoint (``train.calibrate_uncertainty``), then the noise scaling on the
-    validation windows (``train.fit_noise_scales``), as asked; marks it ``calibrated``."""
-    state = load_checkpoint(folder / "best.pt")["trainer"]
-    trainer.model.load_state_dict(state["model"])
-    best = replace(best, calibrated=True)
+def _calibrate(trainer: Trainer, best: BestEpoch, t, stage: bool, scale: bool) -> BestEpoch:
+    """Second stage on ``trainer.model`` (``train.calibrate_uncertainty``), then the noise scaling on the validation
+    windows (``train.fit_noise_scales``), as asked; returns ``best`` with what they did."""
     if stage:
         nll = calibrate_uncertainty(trainer.model, trainer.train, t.calibration_steps, t.batch_size, seed=t.seed)
         best = replace(best, calibration_nll=nll)
@@ -245,31 +249,40 @@ def _calibrate_best(
         best = replace(best, noise_scales=tuple(float(s) for s in fit_noise_scales(trainer.model, trainer.val)))
         scale_noise(trainer.model, *best.noise_scales)
         log.info("noise scaled by %.3g (gyro) and %.3g (acc) on the validation windows", *best.noise_scales)
-    state["model"] = trainer.model.state_dict()
-    save_checkpoint(folder / "best.pt", cfg_dict, state, best, trained_on)
-    last = load_checkpoint(folder / "last.pt")
-    save_checkpoint(folder / "last.pt", cfg_dict, last["trainer"], best, trained_on)
-    log.info("calibrated the noise of %s", folder / "best.pt")
+    return best
 
 
-def _resume(folder: Path, cfg_dict: dict, trainer: Trainer) -> tuple[list[dict], BestEpoch | None]:
+def _resume(folder: Path, config: ExperimentConfig, trainer: Trainer) -> tuple[list[EpochLog], BestEpoch | None]:
     """Restore ``trainer`` from ``folder/last.pt`` if there is one; the metrics log is cut to its epochs."""
     last = folder / "last.pt"
     if not last.exists():
         return [], None
-    payload = load_checkpoint(last)
-    differs = _differences(payload["config"], cfg_dict)
+    stored = load_checkpoint(last)
+    differs = _differences(to_dict(stored.config), to_dict(config))
     if differs:
         raise ConfigError(
             f"{folder}: the run was started with another config (differs at: {', '.join(differs)}); "
             "use a new output folder or the original config"
         )
-    trainer.load_state_dict(payload["trainer"])
-    metrics = folder / "metrics.jsonl"
-    lines = metrics.read_text().splitlines() if metrics.exists() else []
-    history = [json.loads(line) for line in lines][: trainer.epochs_done]
+    trainer.load_state_dict(stored.trainer)
+    history = read_metrics(folder / "metrics.jsonl")[: trainer.epochs_done]
     log.info("resuming %s after epoch %d", folder, trainer.epochs_done)
-    return history, BestEpoch.from_dict(payload["best"])
+    return history, stored.best
+
+
+def read_metrics(path: str | Path) -> list[EpochLog]:
+    """A run folder's ``metrics.jsonl`` (none yet: empty); a line that is not an epoch record is a ``DataError``
+    naming the file and line."""
+    path = Path(path)
+    if not path.exists():
+        return []
+    history = []
+    for number, line in enumerate(path.read_text().splitlines(), start=1):
+        try:
+            history.append(EpochLog.from_dict(json.loads(line)))
+        except (ValueError, KeyError, TypeError) as error:
+            raise DataError(path, "epoch", f"not an epoch record ({error})", line=number) from None
+    return history
 
 
 def _differences(old: dict, new: dict, where: str = "") -> list[str]:
@@ -287,16 +300,16 @@ def _differences(old: dict, new: dict, where: str = "") -> list[str]:
     return out
 
 
-def _stalled(history: list[dict], best: dict, patience: int) -> bool:
-    return patience > 0 and bool(history) and history[-1]["epoch"] - best.epoch >= patience
+def _stalled(history: list[EpochLog], best: BestEpoch | None, patience: int) -> bool:
+    return patience > 0 and bool(history) and history[-1].epoch - best.epoch >= patience
 
 
-def _write_metrics(path: Path, history: list[dict]) -> None:
+def _write_metrics(path: Path, history: list[EpochLog]) -> None:
     with atomic_file(path) as f:
-        f.writelines(json.dumps(entry) + "\n" for entry in history)
+        f.writelines(json.dumps(entry.to_dict()) + "\n" for entry in history)
 
 
-def _progress_bar(enabled: bool, trainer: Trainer, history: list[dict]):
+def _progress_bar(enabled: bool, trainer: Trainer, history: list[EpochLog]):
     """A per-epoch tqdm bar over batches showing the running loss and the last validation metrics, on a terminal
     only: redrawn bars would flood a log file (there, ``_epoch_line`` writes one line per epoch)."""
     if not enabled or not sys.stderr.isatty():
@@ -305,14 +318,16 @@ def _progress_bar(enabled: bool, trainer: Trainer, history: list[dict]):
 
     batches = -(-len(trainer.train) // trainer.batch_size)
     bar = tqdm(total=batches, desc=f"epoch {trainer.epochs_done}", leave=False, unit="batch")
-    last = history[-1] if history else {}
+    last = history[-1] if history else None
     seen = []
 
     def on_batch(loss: float) -> None:
         seen.append(loss)
         shown = {"loss": f"{np.mean(seen):.4f}"}
-        if last:
-            shown |= {"val": f"{last['val_loss']:.4f}", "val_roe": f"{last['val_roe_deg']:.3f}deg"}
+        if last is not None:
+            shown["val"] = f"{last.val_loss:.4f}"
+            if last.val_roe_deg is not None:
+                shown["val_roe"] = f"{last.val_roe_deg:.3f}deg"
         bar.set_postfix(shown, refresh=False)
         bar.update()
         if len(seen) == batches:
@@ -321,15 +336,14 @@ def _progress_bar(enabled: bool, trainer: Trainer, history: list[dict]):
     return on_batch
 
 
-def _epoch_line(name: str, entry: dict, epochs: int) -> None:
+def _epoch_line(name: str, entry: EpochLog, epochs: int) -> None:
     """One line per finished epoch on stderr (above the bar on a terminal): losses, validation metrics, time."""
     from tqdm.auto import tqdm
 
-    line = f"{name} epoch {entry['epoch'] + 1}/{epochs}: train_loss {entry['train_loss']:.4f}"
-    line += f", val_loss {entry['val_loss']:.4f}"
-    if "val_roe_deg" in entry:
-        line += f", val_roe {entry['val_roe_deg']:.3f} deg, val_rpe_rmse {entry['val_rpe_rmse_m']:.4f} m"
-    tqdm.write(f"{line}, lr {entry['lr']:.2g}, {entry['seconds']:.1f} s", file=sys.stderr)
+    line = f"{name} epoch {entry.epoch + 1}/{epochs}: train_loss {entry.train_loss:.4f}, val_loss {entry.val_loss:.4f}"
+    if entry.val_roe_deg is not None:
+        line += f", val_roe {entry.val_roe_deg:.3f} deg, val_rpe_rmse {entry.val_rpe_rmse_m:.4f} m"
+    tqdm.write(f"{line}, lr {entry.lr:.2g}, {entry.seconds:.1f} s", file=sys.stderr)
 
 
 def with_epochs(config: ExperimentConfig, epochs: int) -> ExperimentConfig:

@@ -15,7 +15,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 import torch
@@ -38,12 +38,30 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class EpochLog:
-    """Mean training loss and validation loss of one epoch, and the learning rate used."""
+    """One epoch: its number (0-based), mean training loss, validation loss, the learning rate used; in a run folder
+    (``learned_imu.training.experiment.train_run``, one ``metrics.jsonl`` line each) also the wall time since the run
+    began (s, summed over resumptions) and the validation metrics (means over the validation sequences)."""
 
     epoch: int
     train_loss: float
     val_loss: float
     lr: float
+    seconds: float | None = None
+    val_roe_deg: float | None = None
+    val_rpe_rmse_m: float | None = None
+
+    def to_dict(self) -> dict:
+        """The JSON line's mapping: the fields that are set."""
+        return {key: value for key, value in asdict(self).items() if value is not None}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> EpochLog:
+        """The record of a ``metrics.jsonl`` line (``KeyError``/``TypeError``/``ValueError`` when malformed)."""
+        known = {f.name for f in fields(cls)}
+        extra = sorted(set(data) - known)
+        if extra:
+            raise KeyError(f"unknown keys {extra}")
+        return cls(**{key: (int if key == "epoch" else float)(value) for key, value in data.items()})
 
 
 def window_loss(

@@ -133,7 +133,7 @@ def test_train_then_evaluate_and_export_with_the_checkpoint(shared_data, tmp_pat
         result = CliRunner().invoke(app, ["scale-noise", "--checkpoint", str(source), *held_out, "--out", str(scaled)])
         assert result.exit_code == 0, result.output
         assert "noise scaled by" in result.output and "NSE rot/pos/vel" in result.output
-        stored.append(load_checkpoint(scaled)["best"]["noise_scales"])
+        stored.append(load_checkpoint(scaled).best.noise_scales)
     assert stored[1] == pytest.approx(stored[0], rel=1e-3) and stored[0] != pytest.approx([1.0, 1.0], rel=1e-3)
     first, _ = model_from_checkpoint(run / "best.pt")
     twice, _ = model_from_checkpoint(scaled)

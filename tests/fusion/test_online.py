@@ -18,6 +18,7 @@ from fusion.pgo import ate_m, gps_for
 from learned_imu.datasets.simulator import simulate
 from learned_imu.errors import InputError
 from learned_imu.export import export_preintegration, keyframes_every
+from learned_imu.network.checkpoint import TrainedOn
 from learned_imu.network.model import AirImuNet, correct_sequence
 from tests.helpers import REPO
 
@@ -193,7 +194,7 @@ def test_bad_input_is_refused_by_name(sequence):
     with pytest.raises(InputError, match="unknown smoother"):
         OnlineFusion(None, seq.gravity, first_state(seq), smoother="ekf")
     slow = small_model().eval()
-    slow.trained_on = {"rate_hz": 100.0, "datasets": ["kitti_raw"]}  # as model_from_checkpoint sets it
+    slow.trained_on = TrainedOn(rate_hz=100.0, datasets=("kitti_raw",))  # as model_from_checkpoint sets it
     fusion = OnlineFusion(slow, seq.gravity, first_state(seq))
     with pytest.raises(InputError, match=r"sampled at 200.0 Hz, but the model was trained at 100.0 Hz \(kitti_raw\)"):
         fusion.add_imu(seq.t[:30], seq.gyro[:30], seq.acc[:30])

@@ -113,28 +113,14 @@ def test_data_root_override_moves_every_sequence_list(tmp_path, shared_data):
         load_sequences(config.data.evaluate[1:], config.data.root)
 
 
-def test_renamed_keys_name_the_new_key_and_old_checkpoints_still_load(tmp_path):
-    import torch
-
+def test_renamed_keys_name_the_new_key(tmp_path):
     from fusion.config import load_pgo_config
-    from learned_imu.config import ModelConfig
-    from learned_imu.network.checkpoint import model_from_checkpoint, save_checkpoint
-    from learned_imu.network.model import AirImuNet
 
     pgo = tmp_path / "pgo.yaml"
     pgo.write_text("name: p\nexperiment: e.yaml\nrun: r\noptions: {fixed_gyro_density: 0.004}\n")
     with pytest.raises(ConfigError, match=r"'options.fixed_gyro_density' is now 'options.fixed_gyro_noise_density'"):
         load_pgo_config(pgo)
-    # a checkpoint written before the naming rule: its stored config has the old keys
-    old = {**to_dict(ModelConfig(use_gru=False)), "init_gyro_density": 4e-8, "init_acc_density": 9e-6}
-    del old["init_gyro_cov"], old["init_acc_cov"]
-    model = AirImuNet(use_gru=False, init_gyro_cov=4e-8, init_acc_cov=9e-6)
-    save_checkpoint(tmp_path / "old.pt", {"model": old}, {"model": model.state_dict()}, {})
-    loaded, config = model_from_checkpoint(tmp_path / "old.pt")
-    assert config["model"]["init_gyro_cov"] == 4e-8 and "init_gyro_density" not in config["model"]
-    with torch.no_grad():
-        out = loaded(torch.zeros(1, 9, 3), torch.zeros(1, 9, 3))
-    assert torch.allclose(out.gyro_cov, torch.full_like(out.gyro_cov, 4e-8), rtol=1e-5)
+    # checkpoints written before the naming rule keep loading: tests/learned_imu/network/test_checkpoint.py
 
 
 def test_a_variance_given_as_a_noise_density_sigma_is_refused(tmp_path):

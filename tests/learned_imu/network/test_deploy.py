@@ -15,10 +15,11 @@ import numpy as np
 import pytest
 import torch
 
+from learned_imu.config import ModelConfig
 from learned_imu.errors import DataError, InputError
-from learned_imu.network.checkpoint import save_checkpoint
 from learned_imu.network.deploy import StreamingStep, export_checkpoint, export_model
 from learned_imu.network.model import AirImuNet, correct_sequence
+from tests.helpers import write_checkpoint
 
 ort = pytest.importorskip("onnxruntime")  # the deploy extra; part of the test extra too
 
@@ -215,9 +216,7 @@ def test_streaming_step_in_python_equals_stream():
 
 
 def checkpoint(path, model: AirImuNet, remove_gravity: bool = False):
-    config = {"model": {**{k: list(v) if isinstance(v, tuple) else v for k, v in SIZES.items()}, "use_gru": False},
-              "train": {"remove_gravity": remove_gravity}}  # fmt: skip
-    return save_checkpoint(path, config, {"model": model.state_dict()}, {})
+    return write_checkpoint(path, ModelConfig(**SIZES, use_gru=False), model.state_dict(), remove_gravity)
 
 
 @pytest.mark.slow

@@ -78,12 +78,12 @@ def test_two_processes_give_the_one_process_loss_curve_and_write_one_run_folder(
 
     for name in ("last.pt", "best.pt"):
         a, b = load_checkpoint(single / name), load_checkpoint(multi / name)
-        assert b["best"]["epoch"] == a["best"]["epoch"] and b["best"]["calibrated"]
-        assert a["trainer"]["model"].keys() == b["trainer"]["model"].keys()  # plain keys: no DDP "module." prefix
-        for key, weight in a["trainer"]["model"].items():
-            torch.testing.assert_close(b["trainer"]["model"][key], weight, rtol=0, atol=WEIGHT_ATOL, msg=key)
-        assert torch.equal(a["trainer"]["generator"], b["trainer"]["generator"])  # same shuffling
-        assert torch.equal(a["trainer"]["torch_rng"], b["trainer"]["torch_rng"])  # same dropout draws
+        assert b.best.epoch == a.best.epoch and b.best.calibrated
+        assert a.trainer["model"].keys() == b.trainer["model"].keys()  # plain keys: no DDP "module." prefix
+        for key, weight in a.trainer["model"].items():
+            torch.testing.assert_close(b.trainer["model"][key], weight, rtol=0, atol=WEIGHT_ATOL, msg=key)
+        assert torch.equal(a.trainer["generator"], b.trainer["generator"])  # same shuffling
+        assert torch.equal(a.trainer["torch_rng"], b.trainer["torch_rng"])  # same dropout draws
 
 
 def test_a_batch_that_does_not_split_evenly_is_a_config_error(tmp_path):

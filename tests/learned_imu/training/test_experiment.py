@@ -54,13 +54,13 @@ def test_run_folder_holds_config_metrics_and_checkpoints(tmp_path):
     assert {"train_loss", "val_loss", "lr", "val_roe_deg", "val_rpe_rmse_m", "seconds"} <= set(log[0])
     best = min(log, key=lambda e: e["val_loss"])
     assert summary.best_epoch == best["epoch"]
-    assert load_checkpoint(run / "best.pt")["best"]["val_loss"] == best["val_loss"]
-    assert load_checkpoint(run / "last.pt")["trainer"]["epochs_done"] == 4
+    assert load_checkpoint(run / "best.pt").best.val_loss == best["val_loss"]
+    assert load_checkpoint(run / "last.pt").trainer["epochs_done"] == 4
     model, config = model_from_checkpoint(run / "best.pt")
-    assert config["model"]["gru_sizes"] == [16] and not model.training
+    assert config.model.gru_sizes == (16,) and not model.training
     assert not list(run.glob(".*.tmp"))  # no temporary file left behind
     # the checkpoint records the rate it was trained at; data sampled more than 10 % off it is refused
-    assert model.trained_on == {"rate_hz": pytest.approx(200.0), "datasets": ["simulator"]}
+    assert model.trained_on.rate_hz == pytest.approx(200.0) and model.trained_on.datasets == ("simulator",)
     from learned_imu.datasets.simulator import simulate
     from learned_imu.errors import InputError
     from learned_imu.network.inference import correct
@@ -78,8 +78,8 @@ def test_resumed_run_equals_uninterrupted_run(tmp_path):
     whole, resumed = lines(tmp_path / "whole" / "metrics.jsonl"), lines(tmp_path / "resumed" / "metrics.jsonl")
     assert [e["train_loss"] for e in whole] == [e["train_loss"] for e in resumed]
     assert [e["val_loss"] for e in whole] == [e["val_loss"] for e in resumed]
-    a = load_checkpoint(tmp_path / "whole" / "last.pt")["trainer"]["model"]
-    b = load_checkpoint(tmp_path / "resumed" / "last.pt")["trainer"]["model"]
+    a = load_checkpoint(tmp_path / "whole" / "last.pt").trainer["model"]
+    b = load_checkpoint(tmp_path / "resumed" / "last.pt").trainer["model"]
     assert all(torch.equal(a[k], b[k]) for k in a)
     # a finished run returns at once, and a different config is refused by name
     assert train_run(TINY, tmp_path / "whole", progress=False).epochs == 4
@@ -109,6 +109,22 @@ def test_corrupt_or_foreign_checkpoints_are_named(tmp_path):
         load_checkpoint(bad)
 
 
+def test_the_metrics_log_reads_as_epoch_records_and_a_damaged_line_is_named(tmp_path):
+    from learned_imu.training.experiment import read_metrics
+    from learned_imu.training.train import EpochLog
+
+    run = tmp_path / "run"
+    train_run(with_epochs(TINY, 2), run, progress=False)
+    history = read_metrics(run / "metrics.jsonl")
+    assert [entry.epoch for entry in history] == [0, 1] and all(isinstance(e, EpochLog) for e in history)
+    assert all(e.seconds > 0 and e.val_roe_deg is not None for e in history)
+    assert [e.to_dict() for e in history] == lines(run / "metrics.jsonl")
+    log = run / "metrics.jsonl"
+    log.write_text(log.read_text().splitlines()[0] + '\n{"epoch": 1, "train_loss": 0.1, "val_los": 0.2}\n')
+    with pytest.raises(DataError, match=r"metrics.jsonl, line 2: field 'epoch': not an epoch record.*val_los"):
+        train_run(with_epochs(TINY, 3), run, progress=False)  # resuming reads the log
+
+
 def test_average_bias_recovers_a_constant_simulated_bias():
     # turn-on biases and white noise only (scale errors and g-sensitivity would add to the mean offset)
     model = ImuErrorModel(1e-4, 1e-3, 0.0, 0.0, np.radians(0.5), 0.05)
@@ -128,8 +144,8 @@ def test_ablation_scores_every_setting(tmp_path):
     assert by["Linear calibration"].roe_deg < by["Baseline"].roe_deg
     assert 0 < by["Baseline"].roe_rmse_10f_deg < by["Baseline"].roe_rmse_deg  # 10 samples drift less than 1 s
     assert np.isnan(by["Baseline"].nse_rot) and np.isfinite(by["AirIMU"].nse_rot)
-    no_cov = load_checkpoint(tmp_path / "ablation" / "airimu_no_cov" / "last.pt")["config"]
-    assert no_cov["loss"]["covariance"] == 0.0
+    no_cov = load_checkpoint(tmp_path / "ablation" / "airimu_no_cov" / "last.pt").config
+    assert no_cov.loss.covariance == 0.0
     write_rows(rows, tmp_path / "t.json", tmp_path / "t.csv")
     table = json.loads((tmp_path / "t.json").read_text())["rows"]
     assert table[0]["variant"] == "Baseline" and table[0]["nse_rot"] is None
@@ -146,8 +162,8 @@ def test_ablation_over_seeds_trains_each_learned_variant_per_seed(tmp_path):
     rows = ablate(TINY, tmp_path / "seeds", variants=[VARIANTS[0], *learned], progress=False, seeds=[3, 4])
     assert [(r.variant, r.seed) for r in rows] == [("Baseline", None), ("AirIMU", 3), ("AirIMU", 4)]
     for seed in (3, 4):
-        config = load_checkpoint(tmp_path / "seeds" / f"airimu_seed{seed}" / "last.pt")["config"]
-        assert config["train"]["seed"] == seed
+        config = load_checkpoint(tmp_path / "seeds" / f"airimu_seed{seed}" / "last.pt").config
+        assert config.train.seed == seed
     assert rows[1].roe_deg != rows[2].roe_deg  # different seeds, different models
     summary = {s.variant: s for s in summarise(rows)}
     assert summary["AirIMU"].seeds == 2 and summary["Baseline"].seeds == 1
@@ -180,8 +196,8 @@ def test_noise_scaled_on_the_validation_windows_when_asked(tmp_path):
     )
     train_run(config, tmp_path / "run", progress=False)
     best = load_checkpoint(tmp_path / "run" / "best.pt")
-    scales = best["best"]["noise_scales"]
-    assert best["best"]["calibrated"] and len(scales) == 2 and min(scales) > 0
+    scales = best.best.noise_scales
+    assert best.best.calibrated and len(scales) == 2 and min(scales) > 0
     model, _ = model_from_checkpoint(tmp_path / "run" / "best.pt")
     init = dataclasses.asdict(TINY.model)
     assert float(model.log_init_gyro_density) == pytest.approx(np.log(init["init_gyro_cov"] * scales[0]), abs=1e-5)
@@ -191,15 +207,15 @@ def test_noise_scaled_on_the_validation_windows_when_asked(tmp_path):
 def test_noise_scaling_asked_for_after_a_run_finished_is_applied_once(tmp_path):
     config = dataclasses.replace(TINY, train=dataclasses.replace(TINY.train, epochs=1, calibration_steps=2))
     train_run(config, tmp_path / "run", progress=False)
-    assert "noise_scales" not in load_checkpoint(tmp_path / "run" / "best.pt")["best"]
+    assert load_checkpoint(tmp_path / "run" / "best.pt").best.noise_scales is None
     later = dataclasses.replace(config, train=dataclasses.replace(config.train, scale_noise_on_val=True))
     train_run(later, tmp_path / "run", progress=False)
     first = load_checkpoint(tmp_path / "run" / "best.pt")
     train_run(later, tmp_path / "run", progress=False)  # finished and scaled: nothing changes
     again = load_checkpoint(tmp_path / "run" / "best.pt")
-    assert len(first["best"]["noise_scales"]) == 2 and first["best"] == again["best"]
-    model_state = first["trainer"]["model"]
-    assert torch.equal(model_state["log_init_gyro_density"], again["trainer"]["model"]["log_init_gyro_density"])
+    assert len(first.best.noise_scales) == 2 and first.best == again.best
+    model_state = first.trainer["model"]
+    assert torch.equal(model_state["log_init_gyro_density"], again.trainer["model"]["log_init_gyro_density"])
 
 
 def test_linear_calibration_recovers_scale_misalignment_and_bias():
@@ -278,7 +294,7 @@ def test_device_option_is_checked_and_a_run_on_auto_reads_back_on_the_cpu(tmp_pa
     )
     train_run(config, tmp_path / "run", progress=False)
     model, stored = model_from_checkpoint(tmp_path / "run" / "best.pt")
-    assert stored["train"]["device"] == "auto"
+    assert stored.train.device == "auto"
     assert all(p.device.type == "cpu" for p in model.parameters())
     # the device may change on resume (train.device is a resumable change)
     cpu = dataclasses.replace(config, train=dataclasses.replace(config.train, device="cpu", epochs=2))
@@ -314,8 +330,8 @@ def test_small_euroc_config_trains_and_scores_on_real_data(tmp_path, shared_data
     assert {r.sequence for r in rows} == {"V1_02_medium"}
     assert 4.0 < by["Baseline"].roe_deg < 5.0  # raw EuRoC gyro bias, ~4.5 deg per second
     assert by["Linear calibration"].roe_deg < 0.5 and by["AirIMU"].roe_deg < by["Baseline"].roe_deg
-    best = load_checkpoint(tmp_path / "abl" / "airimu" / "best.pt")["best"]
-    assert best["calibrated"] and len(best["noise_scales"]) == 2
+    best = load_checkpoint(tmp_path / "abl" / "airimu" / "best.pt").best
+    assert best.calibrated and len(best.noise_scales) == 2
 
 
 def test_rows_of_the_papers_kitti_drives_get_its_kitti_table():

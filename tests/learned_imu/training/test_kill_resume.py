@@ -70,9 +70,9 @@ def resume_and_check(cmd: list[str], run: Path, before: list[dict], done: int) -
     assert [e["epoch"] for e in after] == list(range(EPOCHS))  # no lost, duplicated or garbled line
     assert after[:done] == before[:done]  # the checkpointed epochs were kept as logged, not trained again
     assert np.all(np.diff([e["seconds"] for e in after]) > 0)  # time continues across the kill
-    assert load_checkpoint(run / "last.pt")["trainer"]["epochs_done"] == EPOCHS
-    best = load_checkpoint(run / "best.pt")["best"]
-    assert best["calibrated"] and best["val_loss"] == min(e["val_loss"] for e in after)
+    assert load_checkpoint(run / "last.pt").trainer["epochs_done"] == EPOCHS
+    best = load_checkpoint(run / "best.pt").best
+    assert best.calibrated and best.val_loss == min(e["val_loss"] for e in after)
     assert sorted(p.name for p in run.iterdir()) == RUN_FILES  # no temporary file left behind
 
 
@@ -91,7 +91,7 @@ def test_sigkill_at_a_random_moment_resumes_from_the_last_checkpoint(tmp_path):
         proc.wait()
     assert proc.returncode == -signal.SIGKILL
     before = metrics(run)
-    done = load_checkpoint(run / "last.pt")["trainer"]["epochs_done"]
+    done = load_checkpoint(run / "last.pt").trainer["epochs_done"]
     completed = max(len(before), done)  # epochs finished before the kill, by any file's account
     assert completed >= 2 and done >= completed - 1  # the checkpoint lost at most one of them
     load_checkpoint(run / "best.pt")
@@ -112,13 +112,14 @@ writing = None  # the checkpoint being saved
 def die():
     os.kill(os.getpid(), signal.SIGKILL)
 
-def save_checkpoint(path, config, trainer_state, best, *rest):  # between the writes: after the epoch's first
+def save_checkpoint(path, checkpoint):  # between the writes: after the epoch's first
     global writing
     writing = path.name
-    out = real_save(path, config, trainer_state, best, *rest)
-    if MOMENT == "between_writes" and path.name == "last.pt" and trainer_state["epochs_done"] == KILL_EPOCH + 1:
+    out = real_save(path, checkpoint)
+    epochs_done = checkpoint.trainer["epochs_done"]
+    if MOMENT == "between_writes" and path.name == "last.pt" and epochs_done == KILL_EPOCH + 1:
         die()
-    if MOMENT == "after_calibrated_best" and path.name == "best.pt" and getattr(best, "calibrated", False):
+    if MOMENT == "after_calibrated_best" and path.name == "best.pt" and checkpoint.best.calibrated:
         die()  # the calibrated best.pt is on disk, last.pt does not know yet
     return out
 
@@ -154,7 +155,7 @@ def test_sigkill_at_the_worst_moments_of_an_epochs_writes(tmp_path, moment):
                           capture_output=True, timeout=TIMEOUT_S)  # fmt: skip
     assert proc.returncode == -signal.SIGKILL, proc.stderr.decode()[-2000:]
     before = metrics(run)
-    done = load_checkpoint(run / "last.pt")["trainer"]["epochs_done"]
+    done = load_checkpoint(run / "last.pt").trainer["epochs_done"]
     assert done in (kill_epoch, kill_epoch + 1) and len(before) in (kill_epoch, kill_epoch + 1)
     if moment == "mid_checkpoint_write":
         (partial,) = run.glob(".last.pt.*.tmp")  # what the kill left: a truncated temporary file
@@ -174,13 +175,13 @@ def test_sigkill_after_the_calibrated_best_checkpoint_does_not_calibrate_twice(t
                           capture_output=True, timeout=TIMEOUT_S)  # fmt: skip
     assert proc.returncode == -signal.SIGKILL, proc.stderr.decode()[-2000:]
     calibrated = load_checkpoint(run / "best.pt")
-    assert calibrated["best"]["calibrated"] and not load_checkpoint(run / "last.pt")["best"].get("calibrated")
+    assert calibrated.best.calibrated and not load_checkpoint(run / "last.pt").best.calibrated
     subprocess.run(cmd, check=True, timeout=TIMEOUT_S, capture_output=True)
     after = load_checkpoint(run / "best.pt")
-    assert after["best"] == calibrated["best"]
-    for name, tensor in calibrated["trainer"]["model"].items():
-        assert torch.equal(after["trainer"]["model"][name], tensor), name  # not calibrated a second time
-    assert load_checkpoint(run / "last.pt")["best"] == calibrated["best"]
+    assert after.best == calibrated.best
+    for name, tensor in calibrated.trainer["model"].items():
+        assert torch.equal(after.trainer["model"][name], tensor), name  # not calibrated a second time
+    assert load_checkpoint(run / "last.pt").best == calibrated.best
 
 
 # Child process: an export written to a slow device (every write paced at 4 MB/s), killed by the parent mid-write.

@@ -109,6 +109,9 @@ class OnlineFusion:
     ):
         if model is not None and model.training:
             raise InputError("OnlineFusion: call model.eval() first (streaming needs eval mode)")
+        if model is not None and getattr(model, "removes_gravity", False):
+            raise InputError("OnlineFusion: the model was trained with remove_gravity (gravity in the IMU frame from "
+                             "ground truth), which a live stream does not have")  # fmt: skip
         if smoother not in SMOOTHERS:
             raise InputError(f"OnlineFusion: unknown smoother {smoother!r}; known: {', '.join(SMOOTHERS)}")
         if not keyframe_s > 0 or not lag_s >= 2 * keyframe_s:

@@ -110,8 +110,9 @@ class Checkpoint:
         return dataclasses.replace(self, trainer={**self.trainer, "model": weights})
 
     def model(self, source: str | Path = "checkpoint") -> AirImuNet:
-        """The network of the stored config with the stored weights, in eval mode, ``trained_on`` attached; weights
-        that do not fit the config or hold NaN/Inf are a ``DataError`` naming ``source`` (the file)."""
+        """The network of the stored config with the stored weights, in eval mode, with ``trained_on`` and
+        ``removes_gravity`` (``train.remove_gravity``) attached for ``learned_imu.network.inference.correct``;
+        weights that do not fit the config or hold NaN/Inf are a ``DataError`` naming ``source`` (the file)."""
         model = build_model(self.config.model)
         try:
             model.load_state_dict(self.trainer["model"])
@@ -123,6 +124,7 @@ class Checkpoint:
                     source, f"trainer.model.{name}", "holds NaN or Inf weights (a diverged or damaged model)"
                 )
         model.trained_on = self.trained_on
+        model.removes_gravity = self.config.train.remove_gravity
         return model.eval()
 
 

@@ -1,8 +1,8 @@
 """Inference: a trained model applied to a sequence, from a model or straight from a checkpoint file.
 
-- ``correct(model, sequence)``: the model's corrections and noise densities for a whole sequence (streamed);
-- ``correct_from_checkpoint(path, sequence)``: the same from a ``best.pt``, honouring its stored
-  ``train.remove_gravity``;
+- ``correct(model, sequence)``: the model's corrections and noise densities for a whole sequence (streamed; a model
+  read from a checkpoint knows whether it was trained with ``train.remove_gravity``: ``model.removes_gravity``);
+- ``correct_from_checkpoint(path, sequence)``: the same from a ``best.pt``;
 - ``scale_checkpoint_noise(path, sequence, out)``: one noise scale per sensor fitted by maximum likelihood on a
   held-out sequence's windows (``train.noise_residuals``), written to a new checkpoint (``airimu scale-noise``);
 - ``check_rate`` / ``check_times_rate``: a model whose checkpoint records its training rate refuses data sampled
@@ -26,12 +26,17 @@ from learned_imu.network.model import AirImuNet, Correction, correct_sequence, d
 MAX_RATE_MISMATCH = 0.1  # relative difference of sample rates a model is applied across
 
 
-def correct(model: AirImuNet, sequence: ImuSequence, remove_gravity: bool = False) -> Correction:
+def correct(model: AirImuNet, sequence: ImuSequence, remove_gravity: bool | None = None) -> Correction:
     """The model's output for a whole sequence, (N, 3) fields in float64 on the CPU (streamed unless gravity removal
     needs the ground truth in one pass; computed on the model's device). A model read from a checkpoint that
     records its training rate (``model.trained_on``) refuses a sequence sampled more than ``MAX_RATE_MISMATCH`` off
-    it."""
+    it. ``remove_gravity``: None takes the model's own (``model.removes_gravity``, set from its checkpoint; False
+    for a model built in code); a value that contradicts the model's is an ``InputError``."""
     check_rate(model, sequence)
+    own = getattr(model, "removes_gravity", None)
+    if remove_gravity is not None and own is not None and remove_gravity != own:
+        raise InputError(f"correct: remove_gravity={remove_gravity}, but the model was trained with {own}")
+    remove_gravity = bool(own) if remove_gravity is None else remove_gravity
     model.eval()
     device = device_of(model)
     gyro = torch.as_tensor(sequence.gyro, dtype=torch.float32, device=device)
@@ -50,11 +55,10 @@ def correct(model: AirImuNet, sequence: ImuSequence, remove_gravity: bool = Fals
 
 
 def correct_from_checkpoint(checkpoint: str | Path, sequence: ImuSequence) -> Correction:
-    """``correct`` with the model of ``checkpoint`` and its stored ``train.remove_gravity``."""
+    """``correct`` with the model of ``checkpoint`` (which honours its stored ``train.remove_gravity``)."""
     from learned_imu.network.checkpoint import model_from_checkpoint
 
-    model, config = model_from_checkpoint(checkpoint)
-    return correct(model, sequence, config.train.remove_gravity)
+    return correct(model_from_checkpoint(checkpoint)[0], sequence)
 
 
 @dataclass(frozen=True)

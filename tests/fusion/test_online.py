@@ -193,6 +193,10 @@ def test_bad_input_is_refused_by_name(sequence):
         OnlineFusion(small_model().train(), seq.gravity, first_state(seq))
     with pytest.raises(InputError, match="unknown smoother"):
         OnlineFusion(None, seq.gravity, first_state(seq), smoother="ekf")
+    gravity_reader = small_model().eval()
+    gravity_reader.removes_gravity = True  # as model_from_checkpoint sets it for train.remove_gravity
+    with pytest.raises(InputError, match="trained with remove_gravity"):
+        OnlineFusion(gravity_reader, seq.gravity, first_state(seq))
     slow = small_model().eval()
     slow.trained_on = TrainedOn(rate_hz=100.0, datasets=("kitti_raw",))  # as model_from_checkpoint sets it
     fusion = OnlineFusion(slow, seq.gravity, first_state(seq))

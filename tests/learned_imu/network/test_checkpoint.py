@@ -3,6 +3,7 @@ disk; version-1 files (written before format version 2) still load, newer or dam
 
 from __future__ import annotations
 
+import dataclasses
 import re
 
 import pytest
@@ -104,3 +105,24 @@ def test_a_damaged_or_newer_checkpoint_is_named(tmp_path, change, field, message
     torch.save({**torch.load(path, weights_only=True), **change}, path)
     with pytest.raises(DataError, match=f"{re.escape(str(path))}: field '{field}': .*{message}"):
         model_from_checkpoint(path)
+
+
+def test_a_model_that_removes_gravity_says_so_and_is_applied_that_way_or_refused(tmp_path):
+    from learned_imu.datasets.simulator import simulate
+    from learned_imu.errors import InputError
+    from learned_imu.network.inference import correct, correct_from_checkpoint
+
+    path = write_checkpoint(tmp_path / "g.pt", SMALL, build_model(SMALL).state_dict(), remove_gravity=True)
+    model, _ = model_from_checkpoint(path)
+    assert model.removes_gravity is True
+    seq = simulate("drone", duration_s=2.0, seed=0)
+    with_gt = correct(model, seq)  # the model's own setting: gravity from the ground truth
+    torch.testing.assert_close(with_gt.gyro, correct(model, seq, remove_gravity=True).gyro)
+    torch.testing.assert_close(with_gt.gyro, correct_from_checkpoint(path, seq).gyro)
+    with pytest.raises(InputError, match="remove_gravity=False, but the model was trained with True"):
+        correct(model, seq, remove_gravity=False)
+    blind = dataclasses.replace(seq, gt=None)
+    with pytest.raises(InputError, match="removes gravity with ground truth; the sequence has none"):
+        correct(model, blind)
+    plain, _ = model_from_checkpoint(write_checkpoint(tmp_path / "p.pt", SMALL, build_model(SMALL).state_dict()))
+    assert plain.removes_gravity is False and correct(plain, blind).gyro.shape == (len(seq.t), 3)

@@ -76,26 +76,25 @@ def check_timestamps(
     if on_duplicate not in ON_DUPLICATE:
         raise ValueError(f"on_duplicate must be one of {ON_DUPLICATE}, got {on_duplicate!r}")
     line = line_of or (lambda row: None)
+
+    def sample(row: int) -> str:  # where the file line is named, the sample index is not
+        return "" if line(row) is not None else f" (sample {row})"
+
     steps = np.diff(t)
     if (steps < 0).any():
         row = int(np.argmax(steps < 0)) + 1
         raise DataError(
-            source,
-            field,
-            f"time goes backwards: {float(t[row])!r} after {float(t[row - 1])!r} (row {row})",
+            source, field, f"time goes backwards: {float(t[row])!r} after {float(t[row - 1])!r}{sample(row)}",
             line=line(row),
-        )
+        )  # fmt: skip
     dup = steps == 0
     if dup.any():
         row = int(np.argmax(dup)) + 1
         if on_duplicate == "error":
             raise DataError(
-                source,
-                field,
-                f"duplicated time stamp {float(t[row])!r} ({int(dup.sum())} in the file, "
-                f"first at row {row}); pass on_duplicate='drop' to keep the first of each",
-                line=line(row),
-            )
+                source, field, f"duplicated time stamp {float(t[row])!r}{sample(row)}: {int(dup.sum())} repeat(s) in "
+                "the file; pass on_duplicate='drop' to keep the first of each", line=line(row),
+            )  # fmt: skip
         logger.warning("%s: dropping %d samples with duplicated time stamps", source, int(dup.sum()))
     return np.flatnonzero(np.concatenate([[True], ~dup]))
 

@@ -73,6 +73,17 @@ def test_malformed_imu_row(shared_data, tmp_path):
     assert err.value.line == 121
 
 
+@pytest.mark.parametrize("skip_first", [True, False])
+def test_a_repeated_time_stamp_names_its_own_line(shared_data, tmp_path, skip_first):
+    lines = (shared_data / "kitti_gtsam" / "KittiEquivBiasedImu.txt").read_text().splitlines()[:300]
+    lines = lines if skip_first else [lines[0], *lines[2:]]  # without the first row's 1.92 s gap when it is kept
+    lines[150] = lines[149]  # file line 151 repeats line 150
+    (tmp_path / "KittiEquivBiasedImu.txt").write_text("\n".join(lines) + "\n")
+    with pytest.raises(DataError, match="Time") as err:
+        read_kitti(tmp_path, gps_file=None, skip_first=skip_first)
+    assert err.value.line == 151
+
+
 @pytest.mark.slow
 def test_module_does_not_import_gtsam():
     code = "import sys, learned_imu.datasets; print('gtsam' in sys.modules)"

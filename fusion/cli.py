@@ -155,8 +155,8 @@ def fuse(
     console = _wide_console()
     console.print(
         f"fused {len(result.gps.t)} fixes over {len(result.solution.trajectory.t)} keyframes of {sequence.name}: "
-        f"RMSE against all {summary['reference_fixes']} fixes {summary['rmse_to_gps_m']:.3f} m"
-        + (f", ATE against the ground truth {summary['ate_m']:.3f} m" if summary.get("ate_m") is not None else "")
+        f"RMSE against all {summary.reference_fixes} fixes {summary.rmse_to_gps_m:.3f} m"
+        + (f", ATE against the ground truth {summary.ate_m:.3f} m" if summary.ate_m is not None else "")
     )
     for item in written:
         console.print(f"written: {item}")

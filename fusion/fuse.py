@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from factors import load_export
-from fusion.graph import BiasStates, FusionSettings, Gps, Solution, build_graph, solve
+from fusion.graph import BiasStates, FusionSettings, Solution, build_graph, solve
 from fusion.pgo import fixes_on_samples
 from learned_imu.datasets.sequence import GpsFixes, ImuSequence
 from learned_imu.errors import DataError
@@ -36,6 +36,20 @@ DEFAULT_GPS_SIGMA_M = 1.0  # per axis, when the file gives none
 DEFAULT_NOISE_DENSITY = (0.004, 0.08)
 
 
+@dataclass(frozen=True)
+class FusedSummary:
+    """``summary.json``: the sequence, the keyframes solved, the fixes fused and the reference fixes inside the
+    trajectory's span, the position RMSE at those fixes (m) and the ATE against the ground truth (m; None without
+    one)."""
+
+    sequence: str
+    keyframes: int
+    fused_fixes: int
+    reference_fixes: int
+    rmse_to_gps_m: float
+    ate_m: float | None
+
+
 @dataclass(frozen=True, eq=False)
 class Fused:
     """The result: the solution (``.trajectory`` with marginal position covariances), the model's correction of
@@ -43,13 +57,13 @@ class Fused:
 
     solution: Solution
     correction: Correction
-    gps: Gps
+    gps: GpsFixes
     sequence: ImuSequence
 
 
 def fuse(
     sequence: ImuSequence,
-    gps: Gps | GpsFixes | None = None,
+    gps: GpsFixes | None = None,
     model=None,
     settings: FusionSettings | None = None,
     keyframe_s: float | None = None,
@@ -153,7 +167,7 @@ def _enu(geodetic: np.ndarray, path: Path) -> np.ndarray:
     return np.stack(pymap3d.geodetic2enu(lat, lon, alt, lat[0], lon[0], alt[0]), axis=1)
 
 
-def write_outputs(result: Fused, folder: Path, reference: GpsFixes | Gps | None = None) -> tuple[dict, list[Path]]:
+def write_outputs(result: Fused, folder: Path, reference: GpsFixes | None = None) -> tuple[FusedSummary, list[Path]]:
     """``fused.tum`` (TUM, quaternion x y z w, for evo), ``marginals.npz`` (``t`` (K,), ``pos`` (K, 3) m,
     ``pos_cov`` (K, 3, 3) m^2, world frame), ``fused.rrd``, ``fused.png`` and ``summary.json`` (RMSE against the
     ``reference`` fixes, default the fused ones, and the ATE against the ground truth where the sequence has one:
@@ -175,18 +189,13 @@ def write_outputs(result: Fused, folder: Path, reference: GpsFixes | Gps | None 
     reference = reference if reference is not None else result.gps
     inside = (reference.t >= trajectory.t[0]) & (reference.t <= trajectory.t[-1])
     err = trajectory.position_at(reference.t[inside]) - reference.pos[inside]
-    summary = {
-        "sequence": result.sequence.name,
-        "keyframes": int(len(trajectory.t)),
-        "fused_fixes": int(len(result.gps.t)),
-        "reference_fixes": int(inside.sum()),
-        "rmse_to_gps_m": float(np.sqrt(np.mean(np.sum(err**2, axis=1)))),
-        "ate_m": None,
-    }
+    rmse = float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
+    ate = None
     gt = result.sequence.gt
     if gt is not None:
         keep = gt.valid & (result.sequence.t >= trajectory.t[0]) & (result.sequence.t <= trajectory.t[-1])
         err = trajectory.position_at(result.sequence.t[keep]) - gt.pos[keep]
-        summary["ate_m"] = float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
-    written.append(write_json_atomic(folder / "summary.json", summary))
+        ate = float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
+    summary = FusedSummary(result.sequence.name, len(trajectory.t), len(result.gps.t), int(inside.sum()), rmse, ate)
+    written.append(write_json_atomic(folder / "summary.json", dataclasses.asdict(summary)))
     return summary, written

@@ -54,8 +54,8 @@ from learned_imu.io import atomic_file
 X, V, B = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V, gtsam.symbol_shorthand.B
 
 
-# GPS fixes on the IMU clock (t (M,) s, pos (M, 3) world frame m, sigma (M, 3) one-sigma m): one record with the
-# readers' (learned_imu.datasets.sequence.GpsFixes); ``Gps`` is fusion's name for it
+# GPS fixes are the readers' record, learned_imu.datasets.sequence.GpsFixes (t (M,) s on the IMU clock, pos (M, 3)
+# world frame m, sigma (M, 3) one-sigma m); ``Gps`` is its former name here, kept for code written against it
 Gps = GpsFixes
 
 
@@ -173,7 +173,7 @@ MIN_ALIGN_FIXES = 3  # first position, velocity (and the heading) from the GPS t
 MIN_ALIGN_SPREAD_SIGMAS = 5.0  # and a horizontal track longer than this many GPS sigmas, or the heading is noise
 
 
-def _check_observable(export: Export, gps: Gps, keyframe: np.ndarray) -> None:
+def _check_observable(export: Export, gps: GpsFixes, keyframe: np.ndarray) -> None:
     """Without a known first state the GPS track must fix the first heading and velocity: a ``GraphError`` when the
     fused fixes are too few or too close together (the solver would return an arbitrary heading, not an error)."""
     used = keyframe >= 0
@@ -191,7 +191,7 @@ def _check_observable(export: Export, gps: Gps, keyframe: np.ndarray) -> None:
 
 def build_graph(
     export: Export | str | Path,
-    gps: Gps,
+    gps: GpsFixes,
     settings: FusionSettings | None = None,
     initial_state=None,
     bias: BiasStates | None = None,

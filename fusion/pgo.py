@@ -37,9 +37,9 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 
 from factors import load_export
-from fusion.graph import BiasStates, FusionSettings, Gps, Solution, build_graph, solve, with_marginals
+from fusion.graph import BiasStates, FusionSettings, Solution, build_graph, solve, with_marginals
 from learned_imu.config import check_noise_density, load_config
-from learned_imu.datasets.sequence import ImuSequence, gap_indices
+from learned_imu.datasets.sequence import GpsFixes, ImuSequence, gap_indices
 from learned_imu.errors import ConfigError, InputError
 from learned_imu.evaluation.evaluate import dead_reckoning
 from learned_imu.export import export_preintegration, keyframes_every, nearest_samples
@@ -201,7 +201,9 @@ def _with_gap_noise(sequence: ImuSequence, covs, gap_sigmas) -> tuple[np.ndarray
     return out[0], out[1]
 
 
-def gps_for(sequence: ImuSequence, rate_hz: float, sigma_m: float, seed: int, source: str = "auto") -> tuple[Gps, Gps]:
+def gps_for(
+    sequence: ImuSequence, rate_hz: float, sigma_m: float, seed: int, source: str = "auto"
+) -> tuple[GpsFixes, GpsFixes]:
     """(GPS to fuse, GPS to score against). ``source`` (module docstring): ``"simulated"`` from the ground truth,
     ``"recorded"``: the sequence's fixes decimated to ``rate_hz`` (the seed picks the phase), scored against the
     ground truth where it is valid, else against all fixes; ``"auto"``: simulated when there is ground truth."""
@@ -215,8 +217,8 @@ def gps_for(sequence: ImuSequence, rate_hz: float, sigma_m: float, seed: int, so
         index = index[sequence.gt.valid[index]]
         rng = np.random.default_rng([seed, int(rate_hz * 1000)])
         noisy = sequence.gt.pos[index] + rng.normal(0.0, sigma_m, (len(index), 3))
-        fuse = Gps(sequence.t[index], noisy, np.full((len(index), 3), sigma_m))
-        truth = Gps(sequence.t, sequence.gt.pos, np.zeros((len(sequence), 3)))
+        fuse = GpsFixes(sequence.t[index], noisy, np.full((len(index), 3), sigma_m))
+        truth = GpsFixes(sequence.t, sequence.gt.pos, np.zeros((len(sequence), 3)))
         return fuse, truth
     if sequence.gps is None:
         raise InputError(f"{sequence.name}: PGO needs ground truth or GPS fixes")
@@ -226,7 +228,7 @@ def gps_for(sequence: ImuSequence, rate_hz: float, sigma_m: float, seed: int, so
     truth = fixes
     if sequence.gt is not None:
         valid = sequence.gt.valid
-        truth = Gps(sequence.t[valid], sequence.gt.pos[valid], np.zeros((int(valid.sum()), 3)))
+        truth = GpsFixes(sequence.t[valid], sequence.gt.pos[valid], np.zeros((int(valid.sum()), 3)))
     return fixes[keep], truth
 
 
@@ -250,7 +252,7 @@ def recorded_phases(sequence: ImuSequence, rate_hz: float) -> int:
     return max(1, int(round(1.0 / (rate_hz * float(np.median(np.diff(sequence.gps.t)))))))
 
 
-def ate_m(solution: Solution, truth: Gps, fused: Gps | None = None) -> float:
+def ate_m(solution: Solution, truth: GpsFixes, fused: GpsFixes | None = None) -> float:
     """RMSE, m, of the fused positions against the reference positions at the reference's own times within the
     keyframes' span (the trajectory interpolated between keyframes, ``Trajectory.position_at``; no alignment);
     with ``fused`` (the fixes that were fused), only between its first and last fix (``score_span: gps``)."""

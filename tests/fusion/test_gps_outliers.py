@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from factors import load_export
-from fusion.graph import FusionSettings, Gps, build_graph, solve
+from fusion.graph import FusionSettings, build_graph, solve
 from fusion.pgo import ate_m, gps_for
+from learned_imu.datasets.sequence import GpsFixes
 from learned_imu.datasets.simulator import ImuErrorModel, simulate
 from learned_imu.export import export_preintegration, keyframes_every
 
@@ -29,7 +30,7 @@ def setup(tmp_path_factory):
     return seq, load_export(path)
 
 
-def with_outliers(gps: Gps, seed: int) -> tuple[Gps, np.ndarray]:
+def with_outliers(gps: GpsFixes, seed: int) -> tuple[GpsFixes, np.ndarray]:
     """``gps`` with ``OUTLIER_FRACTION`` of its fixes (seeded choice) moved ``OUTLIER_M`` in seeded random 3-D
     directions; returns the fixes and the outliers' indices."""
     rng = np.random.default_rng([seed, 50])
@@ -38,10 +39,10 @@ def with_outliers(gps: Gps, seed: int) -> tuple[Gps, np.ndarray]:
     direction = rng.normal(size=(count, 3))
     pos = gps.pos.copy()
     pos[index] += OUTLIER_M * direction / np.linalg.norm(direction, axis=1, keepdims=True)
-    return Gps(gps.t, pos, gps.sigma), index
+    return GpsFixes(gps.t, pos, gps.sigma), index
 
 
-def fused_ate(export, fixes: Gps, truth: Gps, robust: str | None) -> float:
+def fused_ate(export, fixes: GpsFixes, truth: GpsFixes, robust: str | None) -> float:
     settings = FusionSettings(gps_robust=robust)
     graph, values = build_graph(export, fixes, settings)
     return ate_m(solve(graph, values, export.keyframe_t, settings), truth)

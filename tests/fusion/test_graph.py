@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from factors import load_export
-from fusion.graph import FusionSettings, Gps, build_graph, solve, with_marginals
+from fusion.graph import FusionSettings, build_graph, solve, with_marginals
 from fusion.pgo import ate_m, gps_for
+from learned_imu.datasets.sequence import GpsFixes
 from learned_imu.datasets.simulator import ImuErrorModel, simulate
 from learned_imu.export import export_preintegration, keyframes_every
 
@@ -68,7 +69,7 @@ def test_marginals_tum_output_and_evo(setup, tmp_path):
 
 def test_gps_far_from_keyframes_is_an_error(setup):
     _, export = setup
-    far = Gps(np.array([1e6]), np.zeros((1, 3)), np.full((1, 3), 0.1))
+    far = GpsFixes(np.array([1e6]), np.zeros((1, 3)), np.full((1, 3), 0.1))
     with pytest.raises(ValueError, match="no GPS fix"):
         build_graph(export, far)
 

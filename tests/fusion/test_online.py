@@ -12,9 +12,10 @@ import pytest
 import torch
 
 from factors import load_export
-from fusion.graph import Gps, Solution, build_graph, solve
+from fusion.graph import Solution, build_graph, solve
 from fusion.online import OnlineFusion
 from fusion.pgo import ate_m, gps_for
+from learned_imu.datasets.sequence import GpsFixes
 from learned_imu.datasets.simulator import simulate
 from learned_imu.errors import InputError
 from learned_imu.export import export_preintegration, keyframes_every
@@ -59,7 +60,7 @@ def first_state(seq):
     return gtsam.NavState(gtsam.Pose3(gtsam.Rot3(seq.gt.rot[0]), seq.gt.pos[0]), seq.gt.vel[0])
 
 
-def batch_solution(seq, model, gps: Gps, tmp_path) -> tuple[Solution, float]:
+def batch_solution(seq, model, gps: GpsFixes, tmp_path) -> tuple[Solution, float]:
     """The batch LM solution on an export of the same data; and the largest gyro correction, rad/s."""
     noise, samples, largest = DENSITIES, (None, None), 0.0
     if model is not None:
@@ -73,7 +74,7 @@ def batch_solution(seq, model, gps: Gps, tmp_path) -> tuple[Solution, float]:
     return solve(graph, values, export.keyframe_t), largest
 
 
-def run_online(seq, fusion: OnlineFusion, gps: Gps, check_states: bool = True) -> int:
+def run_online(seq, fusion: OnlineFusion, gps: GpsFixes, check_states: bool = True) -> int:
     """Feed ``seq`` in blocks with each fix once the IMU has passed its time; check the state after every keyframe
     update. Returns the number of keyframes before ``flush``."""
     fix = 0
@@ -98,7 +99,7 @@ def test_online_ends_on_the_batch_solution(sequence, with_model, tmp_path):
     if not with_model:  # fixes 0.3 s after whole seconds: each waits for the next keyframe, its nearest
         index = np.arange(60, len(seq), 200)
         noise = np.random.default_rng(0).normal(0.0, 0.1, (len(index), 3))
-        gps = Gps(seq.t[index], seq.gt.pos[index] + noise, np.full((len(index), 3), 0.1))
+        gps = GpsFixes(seq.t[index], seq.gt.pos[index] + noise, np.full((len(index), 3), 0.1))
     model = small_model() if with_model else None
     batch, largest = batch_solution(seq, model, gps, tmp_path)
     fusion = OnlineFusion(model, seq.gravity, first_state(seq), KEYFRAME_S, *DENSITIES)

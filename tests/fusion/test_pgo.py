@@ -92,16 +92,17 @@ def test_pgo_rows_of_the_papers_sequences_carry_its_ate():
 
 
 def test_ate_can_be_scored_between_the_first_and_last_fused_fix(tmp_path):
-    from fusion.graph import Gps, Solution, Trajectory
+    from fusion.graph import Solution, Trajectory
     from fusion.pgo import ate_m
+    from learned_imu.datasets.sequence import GpsFixes
 
     t = np.arange(0.0, 10.01, 0.5)
     pos = np.zeros((len(t), 3))
     pos[t > 8.0, 0] = 1.0  # the last two seconds dead-reckoned 1 m off
     traj = Trajectory(t, np.repeat(np.eye(3)[None], len(t), 0), pos, np.zeros((len(t), 3)))
     solution = Solution(traj, None, None, 0, 0.0)
-    truth = Gps(t, np.zeros((len(t), 3)), np.zeros((len(t), 3)))
-    fused = Gps(np.array([0.0, 4.0, 8.0]), np.zeros((3, 3)), np.full((3, 3), 0.1))
+    truth = GpsFixes(t, np.zeros((len(t), 3)), np.zeros((len(t), 3)))
+    fused = GpsFixes(np.array([0.0, 4.0, 8.0]), np.zeros((3, 3)), np.full((3, 3), 0.1))
     assert ate_m(solution, truth) == pytest.approx(np.sqrt(4 / 21))  # 4 of 21 reference times 1 m off
     assert ate_m(solution, truth, fused) == 0.0
     bad = tmp_path / "pgo.yaml"

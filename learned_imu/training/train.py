@@ -196,8 +196,8 @@ def calibrate_uncertainty(
 
     Why: in joint training the first epochs see errors of the raw, uncorrected IMU (hundreds of sigmas), and Adam's
     second-moment memory of those gradients then shrinks the noise decoders' steps by orders of magnitude, so their
-    output lags behind the corrections' improvement and over-predicts the noise (measured on EuRoC: e^2/sigma^2 of
-    about 0.03 after joint training, 0.4-1.1 after this stage). A fresh optimiser on the final errors fixes it.
+    output lags behind the corrections' improvement and over-predicts the noise (several-fold on EuRoC: BENCHMARKS.md,
+    "Design measurements"). A fresh optimiser on the final errors fixes it.
     """
     from learned_imu.training.losses import covariance_nll
 

@@ -8,8 +8,8 @@ the ground-truth states after every ``every``-th sample (AirIMU supervises every
 ``context`` samples before each window are fed to the network but neither integrated nor supervised
 (``Windows.correct``): without them the first block of every window is computed from the network's zero padding,
 an input it never sees inside a long sequence, and the covariance loss, which only sees the sum over a window,
-lets the network park nearly all of a window's predicted variance there (measured on KITTI: 99.9 % in the first 9
-of 200 samples, so streaming a whole drive gave densities ~1000x too small: BENCHMARKS.md).
+lets the network park nearly all of a window's predicted variance there, so that streamed over a whole drive its
+densities come out orders of magnitude too small (measured on KITTI: BENCHMARKS.md, "Design measurements").
 """
 
 from __future__ import annotations

@@ -30,7 +30,7 @@ from pathlib import Path
 import torch
 
 from learned_imu.config import ExperimentConfig, ModelConfig, from_dict, renamed, to_dict
-from learned_imu.errors import ConfigError, DataError
+from learned_imu.errors import ConfigError, DataError, InputError
 from learned_imu.io import atomic_file
 from learned_imu.network.model import AirImuNet
 
@@ -105,6 +105,14 @@ class Checkpoint:
     version: int = VERSION
     written_by: dict[str, str] = field(default_factory=dict)
 
+    def __post_init__(self):
+        if not isinstance(self.config, ExperimentConfig):
+            raise InputError(f"Checkpoint.config: expected an ExperimentConfig, got {type(self.config).__name__}")
+        if not isinstance(self.trainer, dict) or not isinstance(self.trainer.get("model"), dict):
+            raise InputError("Checkpoint.trainer: expected Trainer.state_dict(), a dict with the weights under 'model'")
+        if self.best is not None and not isinstance(self.best, BestEpoch):
+            raise InputError(f"Checkpoint.best: expected a BestEpoch or None, got {type(self.best).__name__}")
+
     def with_weights(self, weights: dict) -> Checkpoint:
         """This checkpoint with other model weights (a calibrated or rescaled model), the rest of the trainer kept."""
         return dataclasses.replace(self, trainer={**self.trainer, "model": weights})
@@ -171,7 +179,7 @@ def load_checkpoint(path: str | Path) -> Checkpoint:
         raise DataError(path, missing[0], "missing from the checkpoint")
     return Checkpoint(
         config=_stored_config(payload["config"], path),
-        trainer=_mapping(payload["trainer"], path, "trainer"),
+        trainer=_trainer(payload["trainer"], path),
         best=_best(payload["best"], path),
         trained_on=_trained_on(payload.get("trained_on"), path),
         version=int(version),
@@ -197,6 +205,12 @@ def _stored_config(data, path: Path) -> ExperimentConfig:
 def _mapping(data, path: Path, key: str) -> dict:
     if not isinstance(data, dict):
         raise DataError(path, key, f"expected a mapping, got {type(data).__name__}")
+    return data
+
+
+def _trainer(data, path: Path) -> dict:
+    if not isinstance(_mapping(data, path, "trainer").get("model"), dict):
+        raise DataError(path, "trainer.model", "the model weights are missing")
     return data
 
 

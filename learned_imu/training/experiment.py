@@ -202,7 +202,7 @@ def _train_run(config: ExperimentConfig, folder: Path, progress: bool, world: Wo
                 _epoch_line(config.name, entry, t.epochs)
         log.info("%s epoch %d: %s", config.name, entry.epoch, json.dumps(entry.to_dict()))
     if writer and use_cov:
-        _finish_calibration(folder, Checkpoint(config, {}, best, trained_on), trainer, t)
+        _finish_calibration(folder, config, best, trained_on, trainer)
     barrier(world)  # every rank returns once the folder is complete
     return RunSummary(folder, trainer.epochs_done, best.epoch, best.val_loss, best.seconds)
 
@@ -217,13 +217,14 @@ def _write_epoch(folder: Path, checkpoint: Checkpoint, history: list[EpochLog], 
     save_checkpoint(folder / "last.pt", checkpoint)
 
 
-def _finish_calibration(folder: Path, run: Checkpoint, trainer: Trainer, t) -> None:
+def _finish_calibration(
+    folder: Path, config: ExperimentConfig, best: BestEpoch, trained_on: TrainedOn, trainer: Trainer
+) -> None:
     """Calibrate the best checkpoint if it is not yet (a finished run asked for the scaling later gets it then; the
-    second stage is never repeated). ``run``: this run's config, best epoch and ``trained_on`` (no weights).
-    ``best.pt`` is written before ``last.pt``: after a kill between the two, the record in ``best.pt`` says what was
-    done, and only ``last.pt`` is brought up to date."""
+    second stage is never repeated). ``best.pt`` is written before ``last.pt``: after a kill between the two, the
+    record in ``best.pt`` says what was done, and only ``last.pt`` is brought up to date."""
+    t = config.train
     stored = load_checkpoint(folder / "best.pt")
-    best = run.best
     if stored.best is not None and stored.best.epoch == best.epoch:
         best = replace(best, **{name: getattr(stored.best, name) for name in CALIBRATION_FIELDS})
     stage = t.calibration_steps > 0 and not best.calibrated
@@ -231,12 +232,12 @@ def _finish_calibration(folder: Path, run: Checkpoint, trainer: Trainer, t) -> N
     if stage or scale:
         trainer.model.load_state_dict(stored.trainer["model"])
         best = _calibrate(trainer, replace(best, calibrated=True), t, stage, scale)
-        save_checkpoint(folder / "best.pt", replace(run, trainer=stored.trainer, best=best).with_weights(
-            trainer.model.state_dict()))  # fmt: skip
+        calibrated = Checkpoint(config, stored.trainer, best, trained_on).with_weights(trainer.model.state_dict())
+        save_checkpoint(folder / "best.pt", calibrated)
         log.info("calibrated the noise of %s", folder / "best.pt")
     last = load_checkpoint(folder / "last.pt")
     if last.best != best:
-        save_checkpoint(folder / "last.pt", replace(run, trainer=last.trainer, best=best))
+        save_checkpoint(folder / "last.pt", Checkpoint(config, last.trainer, best, trained_on))
 
 
 def _calibrate(trainer: Trainer, best: BestEpoch, t, stage: bool, scale: bool) -> BestEpoch:

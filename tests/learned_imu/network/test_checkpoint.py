@@ -98,6 +98,7 @@ def test_version_1_files_still_load(tmp_path):
         ({"trained_on": {"datasets": []}}, "trained_on", "expected rate_hz and datasets"),
         ({"config": {"name": "x"}}, "config", r"not readable by this version.*stored config: missing key 'data'"),
         ({"trainer": {"model": {}}}, "trainer.model", "weights do not fit"),
+        ({"trainer": {"epochs_done": 3}}, "trainer.model", "the model weights are missing"),
     ],
 )
 def test_a_damaged_or_newer_checkpoint_is_named(tmp_path, change, field, message):
@@ -126,3 +127,15 @@ def test_a_model_that_removes_gravity_says_so_and_is_applied_that_way_or_refused
         correct(model, blind)
     plain, _ = model_from_checkpoint(write_checkpoint(tmp_path / "p.pt", SMALL, build_model(SMALL).state_dict()))
     assert plain.removes_gravity is False and correct(plain, blind).gyro.shape == (len(seq.t), 3)
+
+
+def test_a_checkpoint_record_refuses_what_it_could_not_save(tmp_path):
+    from learned_imu.errors import InputError
+
+    config = load_checkpoint(write_checkpoint(tmp_path / "c.pt", SMALL, build_model(SMALL).state_dict())).config
+    with pytest.raises(InputError, match="Checkpoint.config: expected an ExperimentConfig, got dict"):
+        Checkpoint({"model": {}}, {"model": {}})
+    with pytest.raises(InputError, match="Checkpoint.trainer: expected Trainer.state_dict"):
+        Checkpoint(config, {"weights": {}})
+    with pytest.raises(InputError, match="Checkpoint.best: expected a BestEpoch or None, got dict"):
+        Checkpoint(config, {"model": {}}, best={"epoch": 1})

@@ -10,7 +10,8 @@ Prints, from the real data alone:
   training flights (the Average Bias baseline).
 With ``--checkpoint``: the model's mean gyro correction per flight and its variation in time, and the ROE of the
 model, of the model's own mean used as a constant, and of the flight's own constant plus the model's time-varying
-part (does what the network adds beyond a constant help?).
+part (does what the network adds beyond a constant help?), and of the running mean of the model's correction (at
+each sample, the mean of its correction so far: causal, so a deployed model could use it).
 """
 
 from __future__ import annotations
@@ -63,7 +64,8 @@ def main() -> None:
         model, config = model_from_checkpoint(args.checkpoint)
         gravity = config.train.remove_gravity
         print(f"\n{args.checkpoint}: mean gyro correction, its std in time (mrad/s); ROE of the model | its mean as a")
-        print("constant | the flight's own constant + the model's time-varying part")
+        print("constant | the flight's own constant + the model's time-varying part | the running mean of its")
+        print("correction (causal)")
         for name in TRAIN + TEST:
             seq = flights[name]
             out = correct(model, seq, gravity)
@@ -74,9 +76,10 @@ def main() -> None:
             )
             if name in TEST:
                 varying = d_gyro - d_gyro.mean(0)
+                running = np.cumsum(d_gyro, axis=0) / np.arange(1, len(d_gyro) + 1)[:, None]
                 line += (
                     f"; ROE {roe(seq, out.gyro.numpy()):.4f} | {roe(seq, seq.gyro + d_gyro.mean(0)):.4f} | "
-                    f"{roe(seq, seq.gyro - own[name] + varying):.4f}"
+                    f"{roe(seq, seq.gyro - own[name] + varying):.4f} | {roe(seq, seq.gyro + running):.4f}"
                 )
             print(line)
 

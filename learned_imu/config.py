@@ -123,6 +123,7 @@ class LossConfig:
     covariance: float = 1e-3
     huber_delta: float = 0.005
     covariance_trains_corrections: bool = False
+    covariance_by_block: bool = False  # each block's NLL weighted by its block weight too (the official loss)
 
     def __post_init__(self):
         for key in ("rotation", "position", "velocity", "covariance"):
@@ -141,12 +142,21 @@ class TrainConfig:
     # network can park a window's predicted variance on its zero-padded first block); at least the network's
     # receptive field (18 samples, two blocks, for the default CNN) so that no window output sees the padding
     context: int = 0
+    # every-window training (learned_imu.training.chunks): the network and the preintegrator run once over a chunk
+    # of this many samples, and every window inside it (starting every ``stride`` samples) is read off that pass;
+    # batch_size then counts chunks. 0: each window corrected and integrated on its own (batch_size counts windows)
+    chunk: int = 0
+    val_stride: int = 0  # distance between validation window starts; 0 = window (no overlap)
+    # integrate velocity and position with the ground truth's rotation (the official AirIMU's gtrot; chunk only):
+    # the gyro correction is then trained by the rotation loss alone, the acc correction by errors free of it
+    gt_rotation: bool = False
     batch_size: int = 16
     epochs: int = 100
     lr: float = 1e-3
     weight_decay: float = 1e-4
     plateau_factor: float = 0.5  # ReduceLROnPlateau on the validation loss
     plateau_patience: int = 5
+    min_lr: float = 0.0  # the plateau schedule's floor (the official AirIMU schedule: 1e-5)
     early_stop_patience: int = 0  # stop after this many epochs without a better validation loss; 0 = never
     calibration_steps: int = 200  # second stage: noise decoders alone on the NLL (0 = off; see train.py)
     # then one scale per sensor's noise fitted on the validation windows (train.fit_noise_scales); only where the
@@ -162,13 +172,17 @@ class TrainConfig:
         _check(self, "train.device", lambda v: v in DEVICES, f"one of {', '.join(DEVICES)}")
         _check(self, "train.window", lambda v: v >= 2, "at least 2 samples")
         _check(self, "train.every", lambda v: 1 <= v <= self.window, f"in [1, train.window = {self.window}]")
-        for key in ("stride", "context", "plateau_patience", "early_stop_patience", "calibration_steps"):
+        for key in ("stride", "val_stride", "context", "plateau_patience", "early_stop_patience", "calibration_steps"):
             _check(self, f"train.{key}", lambda v: v >= 0, "a whole number >= 0")
         for key in ("batch_size", "epochs"):
             _check(self, f"train.{key}", lambda v: v >= 1, "a whole number >= 1")
         _check(self, "train.lr", _positive, "a positive number")
         _check(self, "train.weight_decay", _non_negative, "a number >= 0")
         _check(self, "train.plateau_factor", lambda v: 0.0 < v < 1.0, "in (0, 1)")
+        _check(self, "train.min_lr", lambda v: 0.0 <= v <= self.lr, f"in [0, train.lr = {self.lr}]")
+        _check(self, "train.chunk", lambda v: v == 0 or v >= self.window,
+               f"0 (windows one by one) or at least train.window = {self.window} samples")  # fmt: skip
+        _check(self, "train.gt_rotation", lambda v: not v or self.chunk > 0, "false unless train.chunk is set")
 
 
 @dataclass(frozen=True)

@@ -90,15 +90,7 @@ def preintegrate(gyro, acc, dt, gyro_cov=None, acc_cov=None, at=None, bias_jacob
     if with_cov:
         gyro_cov = _samples_last(_check_density("gyro_cov", gyro_cov, gyro))
         acc_cov = _samples_last(_check_density("acc_cov", acc_cov, acc))
-    # Internally samples are last: vectors (..., 3, N), matrices (..., 3, 3, N); see so3's docstring.
-    w, a, h = _samples_last(gyro), _samples_last(acc), dt[..., None, :]
-    step, step_jacobian = so3.exp_and_right_jacobian(w * h, dim=-2)
-    rot = _cumulative_rotation(step)  # dR after each sample
-    rot_before = torch.cat([_eye_like(rot[..., :1]), rot[..., :-1]], dim=-1)
-    force = so3.matvec(rot_before, a, dim=-2)  # dR_k a_k, start frame
-    vel = torch.cumsum(force * h, dim=-1)
-    vel_before = vel - force * h
-    pos = torch.cumsum(vel_before * h + 0.5 * force * h * h, dim=-1)
+    h, step_jacobian, rot, rot_before, force, vel, pos = _integrate(gyro, acc, dt)
     cov = None
     if with_cov:
         cov = _propagate_covariance(step_jacobian, h, rot, rot_before, force, gyro_cov, acc_cov, index)
@@ -114,6 +106,22 @@ def preintegrate(gyro, acc, dt, gyro_cov=None, acc_cov=None, at=None, bias_jacob
         cov=None if cov is None else _samples_first(cov, 2),
         bias_jacobian=None if jac is None else _samples_first(jac, 2),
     )
+
+
+def _integrate(gyro: torch.Tensor, acc: torch.Tensor, dt: torch.Tensor, rotation: torch.Tensor | None = None):
+    """The scan itself, samples last (vectors (..., 3, N), matrices (..., 3, 3, N); see so3's docstring), on checked
+    samples: ``h`` dt as (..., 1, N), each step's ``Jr(w dt)``, ``dR`` after and before each sample, the specific
+    force in the start frame ``dR_k a_k``, and ``dv``, ``dp`` after each sample. ``rotation`` (samples last, the
+    rotation at each sample): integrate velocity and position with it instead of ``dR_k``."""
+    w, a, h = _samples_last(gyro), _samples_last(acc), dt[..., None, :]
+    step, step_jacobian = so3.exp_and_right_jacobian(w * h, dim=-2)
+    rot = _cumulative_rotation(step)  # dR after each sample
+    rot_before = torch.cat([_eye_like(rot[..., :1]), rot[..., :-1]], dim=-1)
+    force = so3.matvec(rot_before if rotation is None else rotation, a, dim=-2)  # dR_k a_k, start frame
+    vel = torch.cumsum(force * h, dim=-1)
+    vel_before = vel - force * h
+    pos = torch.cumsum(vel_before * h + 0.5 * force * h * h, dim=-1)
+    return h, step_jacobian, rot, rot_before, force, vel, pos
 
 
 def predict(initial: NavState, pre: Preintegrated, gravity) -> NavState:

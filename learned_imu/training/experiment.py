@@ -51,10 +51,18 @@ from learned_imu.network.checkpoint import (
 )
 from learned_imu.network.inference import correct
 from learned_imu.network.model import AirImuNet
+from learned_imu.training.chunks import concat_chunks, make_chunks
 from learned_imu.training.distributed import World, agree, barrier, check_batch_size, is_writer
 from learned_imu.training.losses import LossWeights
-from learned_imu.training.train import EpochLog, Trainer, calibrate_uncertainty, fit_noise_scales, scale_noise
-from learned_imu.training.windows import Windows, concat_windows, make_windows
+from learned_imu.training.train import (
+    EpochLog,
+    Trainer,
+    TrainingData,
+    calibrate_uncertainty,
+    fit_noise_scales,
+    scale_noise,
+)
+from learned_imu.training.windows import concat_windows, make_windows
 
 log = logging.getLogger(__name__)
 # keys that may differ when resuming: the data may move, and the epoch budget may grow
@@ -103,24 +111,34 @@ def load_sequences(specs: tuple[SequenceConfig, ...], root: str | Path) -> list[
     return [seq for spec in specs for seq in load_sequence(spec, root)]
 
 
-def build_windows(sequences: list[ImuSequence], config: ExperimentConfig, stride: int | None) -> Windows:
-    """Windows of every sequence, concatenated; a sequence without a usable window (time gaps in every one, as in
-    some KITTI drives) is skipped with a warning, none at all is an error naming them."""
+def build_windows(sequences: list[ImuSequence], config: ExperimentConfig, stride: int | None) -> TrainingData:
+    """Windows of every sequence, concatenated (with ``train.chunk``, chunks holding those windows:
+    ``learned_imu.training.chunks``); a sequence without a usable window (time gaps in every one, as in some KITTI
+    drives, or shorter than a chunk) is skipped with a warning, none at all is an error naming them."""
     train = config.train
     parts = []
     for s in sequences:
-        part = make_windows(
-            s, train.window, train.every, stride, remove_gravity=train.remove_gravity, allow_empty=True,
-            context=train.context,
-        )  # fmt: skip
+        if train.chunk:
+            part = make_chunks(
+                s, train.chunk, train.window, train.every, stride or train.window, remove_gravity=train.remove_gravity,
+                allow_empty=True, context=train.context, gt_rotation=train.gt_rotation,
+            )  # fmt: skip
+        else:
+            part = make_windows(
+                s, train.window, train.every, stride, remove_gravity=train.remove_gravity, allow_empty=True,
+                context=train.context,
+            )  # fmt: skip
         if part is None:
             log.warning("%s: no usable window of %d samples (gaps, invalid truth); skipped", s.name, train.window)
         else:
             parts.append(part)
     if not parts:
         names = ", ".join(s.name for s in sequences)
-        raise InputError(f"no window of {train.window} samples without a gap or invalid ground truth in: {names}")
-    return concat_windows(parts)
+        what = f"in chunks of {train.chunk} samples " if train.chunk else ""
+        raise InputError(
+            f"no window of {train.window} samples {what}without a gap or invalid ground truth in: {names}"
+        )
+    return concat_chunks(parts) if train.chunk else concat_windows(parts)
 
 
 def loss_weights(config: ExperimentConfig) -> LossWeights:
@@ -169,10 +187,11 @@ def _train_run(config: ExperimentConfig, folder: Path, progress: bool, world: Wo
     model = build_model(config.model)
     use_cov = config.loss.covariance > 0
     trainer = Trainer(
-        model, build_windows(train_seqs, config, t.stride or None), build_windows(val_seqs, config, None),
+        model, build_windows(train_seqs, config, t.stride or None),
+        build_windows(val_seqs, config, t.val_stride or None),
         batch_size=t.batch_size, lr=t.lr, weight_decay=t.weight_decay, weights=loss_weights(config),
         use_covariance=use_cov, plateau_factor=t.plateau_factor, plateau_patience=t.plateau_patience,
-        seed=t.seed, world=world, device=resolve_device(t.device),
+        seed=t.seed, world=world, device=resolve_device(t.device), min_lr=t.min_lr,
     )  # fmt: skip
     trained_on = TrainedOn(
         rate_hz=float(np.median([1.0 / float(np.median(np.diff(s.t))) for s in train_seqs])),

@@ -38,6 +38,10 @@ class LossWeights:
     covariance: float = 1e-3
     huber_delta: float = 0.005  # transition of the smooth L1 loss, in the unit of each block
     covariance_trains_corrections: bool = False
+    covariance_by_block: bool = False
+    """Weight each block's likelihood by that block's weight too, ``sum_b w_b (huber_b + epsilon nll_b)``, as the
+    official AirIMU code does (its ``get_loss``); off: ``sum_b w_b huber_b + epsilon nll`` with the likelihood
+    averaged over all nine components."""
     """Let the likelihood's gradient reach the errors (hence the corrections). Off by default, as in the official
     AirIMU code (its ``covaug: False`` detaches the errors): through the errors the NLL weights each window's
     correction gradient by 1/sigma^2, and with epsilon = 1e-3 that term outweighs the Huber loss ~10x on EuRoC,
@@ -50,43 +54,74 @@ def delta_errors(pre: Preintegrated, start: NavState, end: NavState, gravity) ->
     ``start``: ground-truth state at the window start, shapes (..., 3, 3) / (..., 3); ``end``: ground-truth
     states after the K reported samples, (..., K, 3, 3) / (..., K, 3); ``gravity`` (3,) world frame.
     """
-    g = torch.as_tensor(gravity, dtype=pre.pos.dtype, device=pre.pos.device)
-    t = pre.dt[..., None]
+    return errors_against(pre, truth_deltas(start, end, pre.dt, gravity))
+
+
+def truth_deltas(start: NavState, end: NavState, elapsed: torch.Tensor, gravity) -> Preintegrated:
+    """Ground-truth deltas (module docstring) from the state at a window's start (..., 3, 3) / (..., 3) to the
+    states ``end`` (..., K, 3, 3) / (..., K, 3) reached after ``elapsed`` (..., K) seconds; ``gravity`` (3,) world."""
+    g = torch.as_tensor(gravity, dtype=end.pos.dtype, device=end.pos.device)
+    t = elapsed[..., None]
     r_i_t = start.rot.mT[..., None, :, :]
-    rot_gt = r_i_t @ end.rot
-    vel_gt = (r_i_t @ (end.vel - start.vel[..., None, :] - g * t)[..., None])[..., 0]
-    pos_gt = (r_i_t @ (end.pos - start.pos[..., None, :] - start.vel[..., None, :] * t - 0.5 * g * t * t)[..., None])[
-        ..., 0
-    ]
+    vel = (r_i_t @ (end.vel - start.vel[..., None, :] - g * t)[..., None])[..., 0]
+    pos = (r_i_t @ (end.pos - start.pos[..., None, :] - start.vel[..., None, :] * t - 0.5 * g * t * t)[..., None])
+    return Preintegrated(rot=r_i_t @ end.rot, vel=vel, pos=pos[..., 0], dt=elapsed)
+
+
+def errors_against(pre: Preintegrated, truth: Preintegrated) -> torch.Tensor:
+    """(..., K, 9) errors [theta, p, v] of the deltas ``pre`` against ground-truth deltas ``truth`` (same shapes)."""
     # Rotation error in the chart of the covariance (GTSAM's tangent preintegration, theta = Log(dR)): to first
     # order theta_gt - theta_pred = Jr^-1(theta_pred) Log(dR_pred^T dR_gt). Written this way, not as the difference
     # of the two Logs, so that it does not jump by 2 pi when one of the two angles crosses pi and the other not.
     jr_inv = so3.log_and_right_jacobian_inv(pre.rot)[1]
-    theta = (jr_inv @ so3.log(pre.rot.mT @ rot_gt)[..., None])[..., 0]
-    return torch.cat([theta, pos_gt - pre.pos, vel_gt - pre.vel], dim=-1)
+    theta = (jr_inv @ so3.log(pre.rot.mT @ truth.rot)[..., None])[..., 0]
+    return torch.cat([theta, truth.pos - pre.pos, truth.vel - pre.vel], dim=-1)
 
 
-def state_loss(errors: torch.Tensor, weights: LossWeights) -> torch.Tensor:
-    """Weighted Huber loss of the [theta, p, v] errors (..., 9), averaged over everything but the block."""
+def state_loss(errors: torch.Tensor, weights: LossWeights, mask: torch.Tensor | None = None) -> torch.Tensor:
+    """Weighted Huber loss of the [theta, p, v] errors (..., 9), averaged over everything but the block (over the
+    windows where ``mask``, a bool over the leading dimensions, is True)."""
     zero = torch.zeros_like(errors)
     huber = functional.smooth_l1_loss(errors, zero, reduction="none", beta=weights.huber_delta)
-    blocks = huber.unflatten(-1, (3, 3)).mean(dim=tuple(range(huber.ndim - 1)) + (-1,))  # (3,)
+    blocks = _mean(huber.unflatten(-1, (3, 3)).mean(dim=-1), mask)  # (3,)
     return weights.rotation * blocks[0] + weights.position * blocks[1] + weights.velocity * blocks[2]
 
 
-def covariance_nll(errors: torch.Tensor, cov: torch.Tensor) -> torch.Tensor:
-    """Mean Gaussian negative log-likelihood of errors (..., 9) under the diagonal of ``cov`` (..., 9, 9)."""
+def covariance_nll(
+    errors: torch.Tensor, cov: torch.Tensor, mask: torch.Tensor | None = None, block_weights=None
+) -> torch.Tensor:
+    """Mean Gaussian negative log-likelihood of errors (..., 9) under the diagonal of ``cov`` (..., 9, 9) (over
+    the windows where ``mask`` is True); with ``block_weights`` (rotation, position, velocity), the weighted sum of
+    the three blocks' means instead."""
     variance = torch.diagonal(cov, dim1=-2, dim2=-1) + VARIANCE_FLOOR
-    return 0.5 * (errors.square() / variance + variance.log()).mean()
+    per_component = _mean(0.5 * (errors.square() / variance + variance.log()), mask)  # (9,)
+    if block_weights is None:
+        return per_component.mean()
+    blocks = per_component.unflatten(-1, (3, 3)).mean(dim=-1)
+    return sum(w * b for w, b in zip(block_weights, blocks, strict=True))
 
 
-def total_loss(errors: torch.Tensor, cov: torch.Tensor | None, weights: LossWeights) -> torch.Tensor:
-    """State loss plus, when a covariance is given, epsilon times its negative log-likelihood."""
-    loss = state_loss(errors, weights)
+def total_loss(
+    errors: torch.Tensor, cov: torch.Tensor | None, weights: LossWeights, mask: torch.Tensor | None = None
+) -> torch.Tensor:
+    """State loss plus, when a covariance is given, epsilon times its negative log-likelihood; ``mask`` as in
+    ``state_loss``."""
+    loss = state_loss(errors, weights, mask)
     if cov is not None and weights.covariance > 0:
         seen = errors if weights.covariance_trains_corrections else errors.detach()
-        loss = loss + weights.covariance * covariance_nll(seen, cov)
+        by_block = (weights.rotation, weights.position, weights.velocity) if weights.covariance_by_block else None
+        loss = loss + weights.covariance * covariance_nll(seen, cov, mask, by_block)
     return loss
+
+
+def _mean(x: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+    """Mean over all but the last axis of x (..., C); with a bool ``mask`` over x's leading axes, over the entries
+    it marks only (the others may hold anything finite)."""
+    if mask is None:
+        return x.flatten(0, -2).mean(dim=0)
+    weight = mask.to(x.dtype).reshape(mask.shape + (1,) * (x.ndim - mask.ndim))
+    count = weight.sum() * (x[..., 0].numel() / mask.numel())
+    return (x * weight).flatten(0, -2).sum(dim=0) / count
 
 
 def normalised_squared_errors(errors: torch.Tensor, cov: torch.Tensor) -> torch.Tensor:

@@ -21,17 +21,20 @@ import numpy as np
 import torch
 
 from learned_imu.errors import InputError
-from learned_imu.geometry.preintegration import preintegrate
-from learned_imu.network.model import AirImuNet, device_of
+from learned_imu.network.model import AirImuNet, Correction, device_of
+from learned_imu.training.chunks import Chunks
 from learned_imu.training.distributed import World, from_writer, global_loss, shard, wrap
 from learned_imu.training.losses import (
     VARIANCE_FLOOR,
     LossWeights,
-    delta_errors,
     normalised_squared_errors_of_variance,
     total_loss,
 )
 from learned_imu.training.windows import Windows
+
+TrainingData = Windows | Chunks
+"""What the trainer steps over: windows, each integrated on its own, or chunks whose windows come from one pass
+(``learned_imu.training.chunks``); both offer ``len``, ``select``, ``to``, ``correct`` and ``errors``."""
 
 log = logging.getLogger(__name__)
 
@@ -65,26 +68,26 @@ class EpochLog:
 
 
 def window_loss(
-    model: torch.nn.Module, windows: Windows, weights: LossWeights, use_covariance: bool = True
+    model: torch.nn.Module, batch: TrainingData, weights: LossWeights, use_covariance: bool = True
 ) -> torch.Tensor:
-    """Loss of ``model`` (an ``AirImuNet`` or its DDP wrapper) on ``windows``, a mean over them (see the module
-    docstring)."""
-    out = windows.correct(model)
+    """Loss of ``model`` (an ``AirImuNet`` or its DDP wrapper) on a batch of windows or chunks, a mean over its
+    windows (see the module docstring)."""
+    out = batch.correct(model)
     densities = (out.gyro_cov, out.acc_cov) if use_covariance else (None, None)
-    pre = preintegrate(out.gyro, out.acc, windows.dt, *densities, at=windows.at)
-    errors = delta_errors(pre, windows.start, windows.targets, windows.gravity)
-    return total_loss(errors, pre.cov, weights)
+    errors, cov = batch.errors(out, *densities)
+    return total_loss(errors, cov, weights, batch.mask)
 
 
 class Trainer:
-    """Adam + ReduceLROnPlateau over shuffled mini-batches of windows; one ``epoch()`` at a time. With a
-    ``world``, ``model`` is trained through a DDP wrapper (``self.net``) and ``batch_size`` is the global batch."""
+    """Adam + ReduceLROnPlateau over shuffled mini-batches of windows or chunks (``batch_size`` of them a step);
+    one ``epoch()`` at a time. With a ``world``, ``model`` is trained through a DDP wrapper (``self.net``) and
+    ``batch_size`` is the global batch."""
 
     def __init__(
         self,
         model: AirImuNet,
-        train: Windows,
-        val: Windows,
+        train: TrainingData,
+        val: TrainingData,
         batch_size: int = 16,
         lr: float = 1e-3,
         weight_decay: float = 1e-4,
@@ -95,6 +98,7 @@ class Trainer:
         seed: int = 0,
         world: World | None = None,
         device: str = "cpu",
+        min_lr: float = 0.0,
     ):
         if batch_size < 1 or len(train) == 0 or len(val) == 0:
             raise InputError(f"Trainer: need batch_size >= 1 and windows to train and validate, got {batch_size}")
@@ -109,12 +113,12 @@ class Trainer:
         self.generator = torch.Generator().manual_seed(seed)
         self.optimiser = torch.optim.Adam(model.parameters(), lr=lr, weight_decay=weight_decay)
         self.scheduler = torch.optim.lr_scheduler.ReduceLROnPlateau(
-            self.optimiser, factor=plateau_factor, patience=plateau_patience
+            self.optimiser, factor=plateau_factor, patience=plateau_patience, min_lr=min_lr
         )
         self.epochs_done = 0
 
     def epoch(self, on_batch: Callable[[float], None] | None = None) -> EpochLog:
-        """Train one pass over the shuffled training windows, validate, step the LR schedule."""
+        """Train one pass over the shuffled training windows (or chunks), validate, step the LR schedule."""
         self.model.train()
         order = torch.randperm(len(self.train), generator=self.generator)
         losses = []
@@ -146,8 +150,8 @@ class Trainer:
         total = 0.0
         for first in range(0, len(self.val), self.batch_size):
             batch = self.val.select(torch.arange(first, min(first + self.batch_size, len(self.val))))
-            total += window_loss(self.model, batch, self.weights, use_covariance=False).item() * len(batch)
-        return total / len(self.val)
+            total += window_loss(self.model, batch, self.weights, use_covariance=False).item() * batch.windows
+        return total / self.val.windows
 
     def state_dict(self) -> dict:
         """Everything needed to continue exactly: model, optimiser, schedule, RNG states, epochs done."""
@@ -171,8 +175,8 @@ class Trainer:
 
 def fit(
     model: AirImuNet,
-    train: Windows,
-    val: Windows,
+    train: TrainingData,
+    val: TrainingData,
     epochs: int = 10,
     batch_size: int = 16,
     lr: float = 1e-3,
@@ -187,7 +191,7 @@ def fit(
 
 
 def calibrate_uncertainty(
-    model: AirImuNet, windows: Windows, steps: int = 200, batch_size: int = 16, lr: float = 1e-3, seed: int = 0
+    model: AirImuNet, windows: TrainingData, steps: int = 200, batch_size: int = 16, lr: float = 1e-3, seed: int = 0
 ) -> float:
     """Second stage: fit only the noise decoders by the covariance NLL, the rest of the network frozen, in eval
     mode (as at inference). Returns the mean NLL of the last 20 steps.
@@ -219,9 +223,8 @@ def calibrate_uncertainty(
             pick = torch.randint(0, len(windows), (min(batch_size, len(windows)),), generator=generator)
             batch = windows.select(pick)
             out = batch.correct(model)
-            pre = preintegrate(out.gyro, out.acc, batch.dt, out.gyro_cov, out.acc_cov, at=batch.at)
-            errors = delta_errors(pre, batch.start, batch.targets, batch.gravity).detach()
-            loss = covariance_nll(errors, pre.cov)
+            errors, cov = batch.errors(out, out.gyro_cov, out.acc_cov)
+            loss = covariance_nll(errors.detach(), cov, batch.mask)
             optimiser.zero_grad()
             loss.backward()
             optimiser.step()
@@ -271,7 +274,7 @@ class NoiseResiduals:
 
 
 @torch.no_grad()
-def noise_residuals(model: AirImuNet, windows: Windows, batch_size: int = 64) -> NoiseResiduals:
+def noise_residuals(model: AirImuNet, windows: TrainingData, batch_size: int = 64) -> NoiseResiduals:
     """The model (eval mode) on ``windows``: its errors and its two noise variances (see ``NoiseResiduals``),
     from two float64 preintegrations per batch, one with each sensor's noise alone (on the model's device; the
     result on the CPU)."""
@@ -281,18 +284,18 @@ def noise_residuals(model: AirImuNet, windows: Windows, batch_size: int = 64) ->
     for first in range(0, len(windows), batch_size):
         batch = windows.select(torch.arange(first, min(first + batch_size, len(windows))))
         out = batch.correct(model)
-        gyro, acc, dt = out.gyro.double(), out.acc.double(), batch.dt.double()
-        gyro_cov, acc_cov = out.gyro_cov.double(), out.acc_cov.double()
-        from_gyro = preintegrate(gyro, acc, dt, gyro_cov, torch.zeros_like(acc_cov), at=batch.at)
-        from_acc = preintegrate(gyro, acc, dt, torch.zeros_like(gyro_cov), acc_cov, at=batch.at)
-        start, end = (type(s)(*(x.double() for x in (s.rot, s.vel, s.pos))) for s in (batch.start, batch.targets))
-        errors.append(delta_errors(from_gyro, start, end, batch.gravity.double()))
-        gyro_var.append(torch.diagonal(from_gyro.cov, dim1=-2, dim2=-1))
-        acc_var.append(torch.diagonal(from_acc.cov, dim1=-2, dim2=-1))
+        out = Correction(*(getattr(out, f.name).double() for f in fields(Correction)))
+        batch = batch.double()
+        error, from_gyro = batch.errors(out, out.gyro_cov, torch.zeros_like(out.acc_cov))
+        _, from_acc = batch.errors(out, torch.zeros_like(out.gyro_cov), out.acc_cov)
+        keep = slice(None) if batch.mask is None else batch.mask  # the windows that count, (M, K, ...) each
+        errors.append(error[keep])
+        gyro_var.append(torch.diagonal(from_gyro, dim1=-2, dim2=-1)[keep])
+        acc_var.append(torch.diagonal(from_acc, dim1=-2, dim2=-1)[keep])
     return NoiseResiduals(*(torch.cat(x).cpu() for x in (errors, gyro_var, acc_var)))
 
 
-def fit_noise_scales(model: AirImuNet, windows: Windows) -> tuple[float, float]:
+def fit_noise_scales(model: AirImuNet, windows: TrainingData) -> tuple[float, float]:
     """Scales (gyro, acc) of the model's noise densities that maximise the likelihood of ``windows``' errors
     (``noise_residuals(...).best_scales()``). Meant for windows the corrections were not fitted to (the validation
     set): residuals there are larger than on the training windows, where the noise decoders learned them, and one

@@ -21,8 +21,9 @@ import torch
 
 from learned_imu.datasets.sequence import ImuSequence, gap_indices
 from learned_imu.errors import InputError
-from learned_imu.geometry.preintegration import NavState
+from learned_imu.geometry.preintegration import NavState, preintegrate
 from learned_imu.network.model import Correction
+from learned_imu.training.losses import delta_errors
 
 
 @dataclass(frozen=True, eq=False)
@@ -55,6 +56,13 @@ class Windows:
             return out
         return Correction(*(getattr(out, f.name)[:, self.context :] for f in fields(Correction)))
 
+    def errors(self, out: Correction, gyro_cov=None, acc_cov=None) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """(M, K, 9) delta errors [theta, p, v] of each window at its K supervised states, and their covariances
+        (M, K, 9, 9) when densities (M, L, 3) are given (one ``preintegrate`` per window; ``Chunks.errors`` reads
+        the same from one pass over a chunk)."""
+        pre = preintegrate(out.gyro, out.acc, self.dt, gyro_cov, acc_cov, at=self.at)
+        return delta_errors(pre, self.start, self.targets, self.gravity), pre.cov
+
     def to(self, device: str | torch.device) -> Windows:
         """The same windows on ``device`` (every tensor moved; ``self`` when nothing moves)."""
         if self.gyro.device == torch.device(device):
@@ -66,6 +74,25 @@ class Windows:
         return Windows(
             self.gyro.to(device), self.acc.to(device), self.dt.to(device), move(self.start), move(self.targets),
             self.gravity.to(device), self.at, None if self.gravity_imu is None else self.gravity_imu.to(device),
+            self.context,
+        )  # fmt: skip
+
+    @property
+    def windows(self) -> int:
+        """How many windows (``len``; ``Chunks.windows`` counts the windows inside its chunks)."""
+        return len(self)
+
+    mask = None  # every window counts in a loss (``Chunks.mask`` marks the windows of its chunks that do)
+
+    def double(self) -> Windows:
+        """The same windows in float64."""
+
+        def cast(state: NavState) -> NavState:
+            return NavState(state.rot.double(), state.vel.double(), state.pos.double())
+
+        return Windows(
+            self.gyro.double(), self.acc.double(), self.dt.double(), cast(self.start), cast(self.targets),
+            self.gravity.double(), self.at, None if self.gravity_imu is None else self.gravity_imu.double(),
             self.context,
         )  # fmt: skip
 

@@ -53,6 +53,9 @@ class Preintegrated:
     order) subtracted from the samples, rows [rotation, position, velocity]: to first order the deltas of
     ``(gyro - b_gyro, acc - b_acc)`` are ``rot Exp(J[:3] b)``, ``pos + J[3:6] b``, ``vel + J[6:] b`` (Forster
     et al.'s bias correction)."""
+    variance: torch.Tensor | None = None
+    """(..., N, 9) the diagonal of the covariance, where only that was asked for
+    (``learned_imu.geometry.windowed.preintegrate_windows(..., diagonal=True)``; ``cov`` is then None)."""
 
 
 @dataclass(frozen=True, eq=False)

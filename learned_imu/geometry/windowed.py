@@ -76,6 +76,7 @@ def preintegrate_windows(
     acc_cov=None,
     rotation: torch.Tensor | None = None,
     dtype: torch.dtype | None = torch.float64,
+    diagonal: bool = False,
 ) -> Preintegrated:
     """Preintegrate every window ``[a, a + length)`` of a chunk, ``a`` in ``starts``, from one pass (module docstring).
 
@@ -96,11 +97,13 @@ def preintegrate_windows(
             their covariance only the accelerometer's noise, and only ``rot`` depends on the gyro.
         dtype: the dtype the deltas are computed and returned in (None: the samples'); float64 by default (module
             docstring, "Accuracy"); the covariance is always float64.
+        diagonal: return only the covariance's diagonal, as ``variance`` (``cov`` None): what a diagonal likelihood
+            needs, without the off-diagonal blocks' products.
 
     Returns:
         ``Preintegrated`` with fields (..., M, K, ...): ``rot``, ``vel``, ``pos``, ``dt`` (elapsed time since the
         window's start) in ``dtype``, ``cov`` (..., M, K, 9, 9) float64 when densities are given, in
-        GTSAM's tangent order [rotation, position, velocity].
+        GTSAM's tangent order [rotation, position, velocity] (with ``diagonal``, ``variance`` (..., M, K, 9)).
     """
     gyro, acc, dt = _check_samples(gyro, acc, dt)
     if dtype is not None:
@@ -139,14 +142,15 @@ def preintegrate_windows(
         noise = _noise_prefix(lever, frame.to(d), h.to(d), wide, gyro_cov, acc_cov, coupled)
         window = noise[..., b] - noise[..., a]  # (..., 6, 3, 3, P): S_b - S_a
         cov = _window_covariance(window, rot_ab.to(d), f_a.to(d), r_b.to(d), wide.vel[..., b], wide.pos[..., b],
-                                 wide.time[..., b], coupled)  # fmt: skip
+                                 wide.time[..., b], coupled, diagonal)  # fmt: skip
 
     def out(x: torch.Tensor, item_ndim: int) -> torch.Tensor:
         return _samples_first(x, item_ndim).unflatten(-1 - item_ndim, shape)
 
     return Preintegrated(
         rot=out(rot_ab, 2), vel=out(vel_ab, 1), pos=out(pos_ab, 1), dt=span[..., 0, :].unflatten(-1, shape),
-        cov=None if cov is None else out(cov, 2),
+        cov=None if cov is None or diagonal else out(cov, 2),
+        variance=out(cov, 1) if cov is not None and diagonal else None,
     )  # fmt: skip
 
 
@@ -196,11 +200,13 @@ def _noise_prefix(lever, rot_before, h, prefix: _Prefix, gyro_cov, acc_cov, coup
     return _zero_first(torch.cumsum(increments, dim=-1))
 
 
-def _window_covariance(window, rot_ab, r_a, r_b, v_b, p_b, t_b, coupled: bool = True) -> torch.Tensor:
+def _window_covariance(
+    window, rot_ab, r_a, r_b, v_b, p_b, t_b, coupled: bool = True, diagonal: bool = False
+) -> torch.Tensor:
     """(..., 9, 9, P) covariance of each window in its own frame and GTSAM's tangent chart, order [rotation,
     position, velocity], from ``S_b - S_a`` (``window``, chunk frame): ``C Phi_b (S_b - S_a) Phi_b^T C^T``, block by
     block (module docstring). ``r_a``: the rotation velocity and position were integrated with, at the window's
-    start; ``coupled`` as in ``_noise_prefix``."""
+    start; ``coupled`` as in ``_noise_prefix``. ``diagonal``: only the diagonal, (..., 9, P)."""
     d_rr, d_vr, d_vv, d_pr, d_pv, d_pp = window.unbind(-4)
     t = t_b[..., None, :, :]
     if coupled:
@@ -209,7 +215,7 @@ def _window_covariance(window, rot_ab, r_a, r_b, v_b, p_b, t_b, coupled: bool = 
         s_pr = _mm(y, d_rr) + t * d_vr + d_pr
         w_v = _mm(y, d_vr, True) + t * d_vv + d_pv
         s_vv = _mm(s_vr, x, True) + _mm(x, d_vr, True) + d_vv
-        s_pv = _mm(s_pr, x, True) + w_v
+        s_pv = None if diagonal else _mm(s_pr, x, True) + w_v
         s_pp = _mm(s_pr, y, True) + t * w_v + _mm(y, d_pr, True) + t * _tr(d_pv) + d_pp
     else:  # Phi_b = [[I, 0, 0], [0, I, 0], [0, T I, I]]
         s_vr, s_pr, s_vv = d_vr, t * d_vr + d_pr, d_vv
@@ -222,6 +228,9 @@ def _window_covariance(window, rot_ab, r_a, r_b, v_b, p_b, t_b, coupled: bool = 
     def congruent(left, block, right):  # left block right^T
         return _mm(_mm(left, block), right, True)
 
+    if diagonal:  # diag(L S L^T)_i = sum_k (L S)_ik L_ik
+        blocks = ((to_tangent, d_rr), (back, s_pp), (back, s_vv))
+        return torch.cat([(_mm(left, block) * left).sum(dim=-2) for left, block in blocks], dim=-2)
     c_rr = congruent(to_tangent, d_rr, to_tangent)
     c_pr, c_vr = congruent(back, s_pr, to_tangent), congruent(back, s_vr, to_tangent)
     c_pp, c_pv, c_vv = (congruent(back, block, back) for block in (s_pp, s_pv, s_vv))

@@ -73,12 +73,14 @@ class Chunks:
         return Correction(*(getattr(out, f.name)[:, self.context :] for f in fields(Correction)))
 
     def errors(self, out: Correction, gyro_cov=None, acc_cov=None) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """(B, M, K, 9) delta errors [theta, p, v] of every window at its K supervised states, and their covariances
-        (B, M, K, 9, 9) (float64) when densities (B, N, 3) are given; only the windows of ``mask`` count."""
+        """(B, M, K, 9) delta errors [theta, p, v] of every window at its K supervised states, and their variances
+        (B, M, K, 9), the covariance's diagonal, when densities (B, N, 3) are given (float64); only the windows of
+        ``mask`` count."""
         pre = preintegrate_windows(
-            out.gyro, out.acc, self.dt, self.starts, self.length, self.every, gyro_cov, acc_cov, self.rotation
-        )
-        return errors_against(pre, self.truth), pre.cov
+            out.gyro, out.acc, self.dt, self.starts, self.length, self.every, gyro_cov, acc_cov, self.rotation,
+            diagonal=True,
+        )  # fmt: skip
+        return errors_against(pre, self.truth), pre.variance
 
     def to(self, device: str | torch.device) -> Chunks:
         """The same chunks on ``device``."""

@@ -90,10 +90,18 @@ def state_loss(errors: torch.Tensor, weights: LossWeights, mask: torch.Tensor | 
 def covariance_nll(
     errors: torch.Tensor, cov: torch.Tensor, mask: torch.Tensor | None = None, block_weights=None
 ) -> torch.Tensor:
-    """Mean Gaussian negative log-likelihood of errors (..., 9) under the diagonal of ``cov`` (..., 9, 9) (over
-    the windows where ``mask`` is True); with ``block_weights`` (rotation, position, velocity), the weighted sum of
-    the three blocks' means instead."""
-    variance = torch.diagonal(cov, dim1=-2, dim2=-1) + VARIANCE_FLOOR
+    """Mean Gaussian negative log-likelihood of errors (..., 9) under the diagonal of ``cov`` (..., 9, 9)
+    (``variance_nll``)."""
+    return variance_nll(errors, torch.diagonal(cov, dim1=-2, dim2=-1), mask, block_weights)
+
+
+def variance_nll(
+    errors: torch.Tensor, variance: torch.Tensor, mask: torch.Tensor | None = None, block_weights=None
+) -> torch.Tensor:
+    """Mean Gaussian negative log-likelihood of errors (..., 9) under per-component variances (..., 9), over the
+    windows where ``mask`` is True; with ``block_weights`` (rotation, position, velocity), the weighted sum of the
+    three blocks' means instead."""
+    variance = variance + VARIANCE_FLOOR
     per_component = _mean(0.5 * (errors.square() / variance + variance.log()), mask)  # (9,)
     if block_weights is None:
         return per_component.mean()
@@ -102,15 +110,15 @@ def covariance_nll(
 
 
 def total_loss(
-    errors: torch.Tensor, cov: torch.Tensor | None, weights: LossWeights, mask: torch.Tensor | None = None
+    errors: torch.Tensor, variance: torch.Tensor | None, weights: LossWeights, mask: torch.Tensor | None = None
 ) -> torch.Tensor:
-    """State loss plus, when a covariance is given, epsilon times its negative log-likelihood; ``mask`` as in
-    ``state_loss``."""
+    """State loss plus, when the errors' variances (..., 9) are given (the diagonal of their covariance), epsilon
+    times their negative log-likelihood; ``mask`` as in ``state_loss``."""
     loss = state_loss(errors, weights, mask)
-    if cov is not None and weights.covariance > 0:
+    if variance is not None and weights.covariance > 0:
         seen = errors if weights.covariance_trains_corrections else errors.detach()
         by_block = (weights.rotation, weights.position, weights.velocity) if weights.covariance_by_block else None
-        loss = loss + weights.covariance * covariance_nll(seen, cov, mask, by_block)
+        loss = loss + weights.covariance * variance_nll(seen, variance, mask, by_block)
     return loss
 
 

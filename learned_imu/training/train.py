@@ -74,8 +74,8 @@ def window_loss(
     windows (see the module docstring)."""
     out = batch.correct(model)
     densities = (out.gyro_cov, out.acc_cov) if use_covariance else (None, None)
-    errors, cov = batch.errors(out, *densities)
-    return total_loss(errors, cov, weights, batch.mask)
+    errors, variance = batch.errors(out, *densities)
+    return total_loss(errors, variance, weights, batch.mask)
 
 
 class Trainer:
@@ -203,7 +203,7 @@ def calibrate_uncertainty(
     output lags behind the corrections' improvement and over-predicts the noise (several-fold on EuRoC: BENCHMARKS.md,
     "Design measurements"). A fresh optimiser on the final errors fixes it.
     """
-    from learned_imu.training.losses import covariance_nll
+    from learned_imu.training.losses import variance_nll
 
     heads = [p for name, p in model.named_parameters() if "cov_decoder" in name]
     if not heads:
@@ -223,8 +223,8 @@ def calibrate_uncertainty(
             pick = torch.randint(0, len(windows), (min(batch_size, len(windows)),), generator=generator)
             batch = windows.select(pick)
             out = batch.correct(model)
-            errors, cov = batch.errors(out, out.gyro_cov, out.acc_cov)
-            loss = covariance_nll(errors.detach(), cov, batch.mask)
+            errors, variance = batch.errors(out, out.gyro_cov, out.acc_cov)
+            loss = variance_nll(errors.detach(), variance, batch.mask)
             optimiser.zero_grad()
             loss.backward()
             optimiser.step()
@@ -290,8 +290,8 @@ def noise_residuals(model: AirImuNet, windows: TrainingData, batch_size: int = 6
         _, from_acc = batch.errors(out, torch.zeros_like(out.gyro_cov), out.acc_cov)
         keep = slice(None) if batch.mask is None else batch.mask  # the windows that count, (M, K, ...) each
         errors.append(error[keep])
-        gyro_var.append(torch.diagonal(from_gyro, dim1=-2, dim2=-1)[keep])
-        acc_var.append(torch.diagonal(from_acc, dim1=-2, dim2=-1)[keep])
+        gyro_var.append(from_gyro[keep])
+        acc_var.append(from_acc[keep])
     return NoiseResiduals(*(torch.cat(x).cpu() for x in (errors, gyro_var, acc_var)))
 
 

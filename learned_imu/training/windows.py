@@ -57,11 +57,12 @@ class Windows:
         return Correction(*(getattr(out, f.name)[:, self.context :] for f in fields(Correction)))
 
     def errors(self, out: Correction, gyro_cov=None, acc_cov=None) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """(M, K, 9) delta errors [theta, p, v] of each window at its K supervised states, and their covariances
-        (M, K, 9, 9) when densities (M, L, 3) are given (one ``preintegrate`` per window; ``Chunks.errors`` reads
-        the same from one pass over a chunk)."""
+        """(M, K, 9) delta errors [theta, p, v] of each window at its K supervised states, and their variances
+        (M, K, 9), the covariance's diagonal, when densities (M, L, 3) are given (one ``preintegrate`` per window;
+        ``Chunks.errors`` reads the same from one pass over a chunk)."""
         pre = preintegrate(out.gyro, out.acc, self.dt, gyro_cov, acc_cov, at=self.at)
-        return delta_errors(pre, self.start, self.targets, self.gravity), pre.cov
+        variance = None if pre.cov is None else torch.diagonal(pre.cov, dim1=-2, dim2=-1)
+        return delta_errors(pre, self.start, self.targets, self.gravity), variance
 
     def to(self, device: str | torch.device) -> Windows:
         """The same windows on ``device`` (every tensor moved; ``self`` when nothing moves)."""

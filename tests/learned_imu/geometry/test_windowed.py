@@ -231,3 +231,14 @@ def test_bad_noise_and_rotation_are_refused():
         preintegrate_windows(gyro, acc, dt, starts, 50, 10, rotation=bad)
     with pytest.raises(InputError, match="gyro contains NaN"):
         preintegrate_windows(gyro * float("nan"), acc, dt, starts, 50, 10)
+
+
+@pytest.mark.parametrize("known_rotation", [False, True])
+def test_the_diagonal_alone_is_the_full_covariances_diagonal(known_rotation):
+    gyro, acc, dt, gyro_cov, acc_cov = chunk(9, batch=2, n=1500)
+    rotation = so3.exp(0.1 * gyro) if known_rotation else None
+    starts = torch.arange(0, 501, 10)
+    full = preintegrate_windows(gyro, acc, dt, starts, 1000, 50, gyro_cov, acc_cov, rotation)
+    alone = preintegrate_windows(gyro, acc, dt, starts, 1000, 50, gyro_cov, acc_cov, rotation, diagonal=True)
+    assert alone.cov is None and alone.variance.shape == full.cov.shape[:-1]
+    assert relative(alone.variance, torch.diagonal(full.cov, dim1=-2, dim2=-1)) < 1e-14

@@ -9,6 +9,7 @@ import torch
 from learned_imu import NavState, predict, preintegrate
 from learned_imu.datasets.simulator import ImuErrorModel, simulate_with_truth
 from learned_imu.training.losses import (
+    VARIANCE_FLOOR,
     LossWeights,
     covariance_nll,
     delta_errors,
@@ -87,20 +88,37 @@ def test_state_loss_weights_and_total():
     assert state_loss(errors, weights).item() == pytest.approx(2.0 * (1.0 - 0.5 * weights.huber_delta))
     assert state_loss(torch.zeros(4, 9), weights).item() == 0.0
     cov = torch.eye(9).expand(4, 9, 9)
-    assert total_loss(errors, cov, weights).item() == pytest.approx(state_loss(errors, weights).item())
+    variance = torch.diagonal(cov, dim1=-2, dim2=-1)
+    assert total_loss(errors, variance, weights).item() == pytest.approx(state_loss(errors, weights).item())
     with_cov = LossWeights(covariance=1e-3)
-    assert total_loss(errors, cov, with_cov).item() == pytest.approx(
+    assert total_loss(errors, variance, with_cov).item() == pytest.approx(
         state_loss(errors, with_cov).item() + 1e-3 * covariance_nll(errors, cov).item(), rel=1e-6
+    )
+
+
+def test_the_official_loss_weights_each_blocks_likelihood_by_its_block_weight():
+    """``covariance_by_block``: sum_b w_b (huber_b + epsilon nll_b), the official ``get_loss``."""
+    g = torch.Generator().manual_seed(0)
+    errors = 0.01 * torch.randn(5, 4, 9, generator=g, dtype=torch.float64)
+    variance = 1e-4 * (1 + torch.rand(5, 4, 9, generator=g, dtype=torch.float64))
+    weights = LossWeights(rotation=5.0, position=0.5, velocity=0.05, covariance=0.04, covariance_by_block=True)
+    nll = 0.5 * (errors.square() / (variance + VARIANCE_FLOOR) + torch.log(variance + VARIANCE_FLOOR))
+    blocks = nll.unflatten(-1, (3, 3)).mean(dim=(0, 1, 3))
+    expected = state_loss(errors, weights) + 0.04 * (5.0 * blocks[0] + 0.5 * blocks[1] + 0.05 * blocks[2])
+    assert total_loss(errors, variance, weights).item() == pytest.approx(expected.item(), rel=1e-12)
+    mask = torch.tensor([True, False, True, True, False])  # a masked mean is the mean of the windows kept
+    assert total_loss(errors, variance, weights, mask).item() == pytest.approx(
+        total_loss(errors[mask], variance[mask], weights).item(), rel=1e-12
     )
 
 
 def test_covariance_loss_trains_the_uncertainty_not_the_corrections_by_default():
     """As the official code (``covaug: False``): the NLL's gradient reaches the covariance, not the errors."""
     errors = torch.randn(4, 9, dtype=torch.float64, requires_grad=True)
-    cov = torch.diag_embed(torch.rand(4, 9, dtype=torch.float64) * 1e-4 + 1e-6).requires_grad_(True)
+    variance = (torch.rand(4, 9, dtype=torch.float64) * 1e-4 + 1e-6).requires_grad_(True)
     for through in (False, True):
         weights = LossWeights(covariance_trains_corrections=through)
-        grad_e, grad_c = torch.autograd.grad(total_loss(errors, cov, weights), (errors, cov))
+        grad_e, grad_c = torch.autograd.grad(total_loss(errors, variance, weights), (errors, variance))
         (grad_state,) = torch.autograd.grad(state_loss(errors, weights), errors)
         assert grad_c.abs().max() > 0
         assert torch.allclose(grad_e, grad_state) != through

@@ -118,6 +118,8 @@ def chunk_offsets(n: int, chunk: int, length: int, stride: int, context: int) ->
     Window starts are the grid ``context, context + stride, ...`` (``make_windows``'s); chunk i holds the starts
     ``offset_i + stride * [0, M)`` and owns those from ``owned_i`` on (the last chunk, moved back to fit, shares
     some with the one before it). Returns (offsets, owned), both (C,) sample indices; empty if no chunk fits."""
+    if chunk < length or (chunk - length) % stride:
+        raise InputError(f"chunk_offsets: need chunk - length a multiple of stride; got {chunk}, {length}, {stride}")
     per_chunk = (chunk - length) // stride + 1  # M
     last = n - 1 - chunk  # the chunk's last state (after its last sample) must exist: offset + chunk <= n - 1
     if last < context:
@@ -182,7 +184,7 @@ def make_chunks(
     def t(x):
         return torch.as_tensor(x, dtype=dtype)
 
-    gt = sequence.gt
+    rot = _finite_rotations(sequence.gt.rot)
     return Chunks(
         gyro=t(sequence.gyro[fed]),
         acc=t(sequence.acc[fed]),
@@ -192,9 +194,9 @@ def make_chunks(
         starts=torch.as_tensor(local, dtype=torch.long),
         length=length,
         every=every,
-        gravity_imu=t(np.einsum("mlji,j->mli", gt.rot[fed], sequence.gravity)) if remove_gravity else None,
+        gravity_imu=t(np.einsum("mlji,j->mli", rot[fed], sequence.gravity)) if remove_gravity else None,
         context=context,
-        rotation=t(_finite_rotations(gt.rot)[offsets[:, None] + np.arange(chunk)]) if gt_rotation else None,
+        rotation=t(rot[offsets[:, None] + np.arange(chunk)]) if gt_rotation else None,
     )
 
 
@@ -232,6 +234,9 @@ def concat_chunks(parts: list[Chunks]) -> Chunks:
             first.gyro.shape[1], first.length, first.every, first.context)  # fmt: skip
         if not same or not torch.equal(other.starts, first.starts):
             raise InputError("concat_chunks: chunks differ in length, windows, context or supervised samples")
+        for name, option in (("gravity_imu", "remove_gravity"), ("rotation", "gt_rotation")):
+            if (getattr(other, name) is None) != (getattr(first, name) is None):
+                raise InputError(f"concat_chunks: some chunks were made with {option} and some without")
     if len(parts) == 1:
         return first
 

@@ -86,13 +86,18 @@ def check_batch_size(batch_size: int, world: World | None) -> None:
         )
 
 
-def shard(batch: torch.Tensor, world: World | None) -> tuple[torch.Tensor, float]:
-    """This rank's contiguous part of a global batch of window indices, and its loss scale
-    ``n_here * world size / n_batch`` (1 for equal parts; 0 for an empty part). In one process: all of it, 1."""
+def shard(batch: torch.Tensor, world: World | None, windows: torch.Tensor | None = None) -> tuple[torch.Tensor, float]:
+    """This rank's contiguous part of a global batch of window (or chunk) indices, and its loss scale
+    ``n_here * world size / n_batch`` (1 for equal parts; 0 for an empty part), with ``n`` counted in windows when
+    ``windows`` gives each item's count (chunks hold different numbers of valid windows). In one process: all of
+    it, 1."""
     if world is None:
         return batch, 1.0
     part = torch.tensor_split(batch, world.size)[world.rank]
-    return part, len(part) * world.size / len(batch)
+    if windows is None:
+        return part, len(part) * world.size / len(batch)
+    total = float(windows[batch].sum())
+    return part, float(windows[part].sum()) * world.size / total if total else 0.0
 
 
 def global_loss(loss: float, scale: float, world: World | None) -> float:

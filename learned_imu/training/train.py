@@ -121,9 +121,10 @@ class Trainer:
         """Train one pass over the shuffled training windows (or chunks), validate, step the LR schedule."""
         self.model.train()
         order = torch.randperm(len(self.train), generator=self.generator)
+        counts = None if self.train.mask is None else self.train.mask.sum(dim=1).cpu()  # windows in each chunk
         losses = []
         for first in range(0, len(self.train), self.batch_size):
-            index, scale = shard(order[first : first + self.batch_size], self.world)
+            index, scale = shard(order[first : first + self.batch_size], self.world, counts)
             loss = window_loss(self.net, self.train.select(index), self.weights, self.use_covariance)
             self.optimiser.zero_grad()
             (loss if scale == 1.0 else loss * scale).backward()

@@ -38,14 +38,14 @@ class LossWeights:
     covariance: float = 1e-3
     huber_delta: float = 0.005  # transition of the smooth L1 loss, in the unit of each block
     covariance_trains_corrections: bool = False
+    """Let the likelihood's gradient reach the errors (hence the corrections). Off by default, as in the official
+    AirIMU code's ``covaug: False`` (its EuRoC config sets it true): through the errors the NLL weights each
+    window's correction gradient by 1/sigma^2, and with epsilon = 1e-3 that term outweighs the Huber loss ~10x on
+    EuRoC, so the corrections end up trained by whatever the noise decoders currently believe."""
     covariance_by_block: bool = False
     """Weight each block's likelihood by that block's weight too, ``sum_b w_b (huber_b + epsilon nll_b)``, as the
     official AirIMU code does (its ``get_loss``); off: ``sum_b w_b huber_b + epsilon nll`` with the likelihood
     averaged over all nine components."""
-    """Let the likelihood's gradient reach the errors (hence the corrections). Off by default, as in the official
-    AirIMU code (its ``covaug: False`` detaches the errors): through the errors the NLL weights each window's
-    correction gradient by 1/sigma^2, and with epsilon = 1e-3 that term outweighs the Huber loss ~10x on EuRoC,
-    so the corrections end up trained by whatever the noise decoders currently believe."""
 
 
 def delta_errors(pre: Preintegrated, start: NavState, end: NavState, gravity) -> torch.Tensor:

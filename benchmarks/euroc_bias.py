@@ -11,7 +11,10 @@ Prints, from the real data alone:
 With ``--checkpoint``: the model's mean gyro correction per flight and its variation in time, and the ROE of the
 model, of the model's own mean used as a constant, and of the flight's own constant plus the model's time-varying
 part (does what the network adds beyond a constant help?), and of the running mean of the model's correction (at
-each sample, the mean of its correction so far: causal, so a deployed model could use it).
+each sample, the mean of its correction so far: causal, so a deployed model could use it); and whether the
+correction is a constant: the std over 1-s means of the model's correction beside the std over 1-s means of the
+flight's own gyro error (raw minus ground-truth-implied, ``imu_from_ground_truth``) after removing its constant.
+``--flights`` scores other flights than the three test flights (e.g. the ones a leave-flights-out run held out).
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from learned_imu.datasets import read_sequence
-from learned_imu.evaluation.baselines import average_bias
+from learned_imu.evaluation.baselines import average_bias, imu_from_ground_truth
 from learned_imu.evaluation.evaluate import evaluate
 
 TRAIN = ("MH_01_easy", "MH_03_medium", "MH_05_difficult", "V1_02_medium", "V2_01_easy", "V2_03_difficult")
@@ -35,13 +38,30 @@ def roe(sequence, gyro) -> float:
     return evaluate(sequence, 1.0, "s", gyro, sequence.acc).roe_deg
 
 
+def second_means_std(sequence, x: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
+    """(3,) std over the flight's whole seconds of the per-second means of x (N, 3), samples where ``valid``."""
+    second = np.floor(sequence.t[: len(x)] - sequence.t[0]).astype(int)
+    keep = np.ones(len(x), dtype=bool) if valid is None else valid
+    means = [x[keep & (second == k)].mean(axis=0) for k in np.unique(second[keep])]
+    return np.std(means, axis=0)
+
+
+def own_residual_std(sequence) -> np.ndarray:
+    """(3,) ``second_means_std`` of the flight's own gyro error minus its constant, rad/s."""
+    gyro_gt, _, ok = imu_from_ground_truth(sequence)
+    error = sequence.gyro[:-1] - gyro_gt
+    return second_means_std(sequence, error - error[ok].mean(axis=0), ok)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--data", default=str(Path(__file__).resolve().parents[2] / "shared" / "data"))
     parser.add_argument("--checkpoint", default=None)
+    parser.add_argument("--flights", default=",".join(TEST), help="flights scored with --checkpoint (comma-separated)")
     args = parser.parse_args()
+    scored = tuple(args.flights.split(","))
     euroc = Path(args.data) / "euroc"
-    flights = {name: read_sequence("euroc", euroc / name) for name in TRAIN + TEST}
+    flights = {name: read_sequence("euroc", euroc / name) for name in dict.fromkeys(TRAIN + TEST + scored)}
     own = {name: average_bias([seq]).gyro_rad_s for name, seq in flights.items()}
     print("constant gyro bias of each flight (mrad/s, x y z):")
     for name in TRAIN + TEST:
@@ -65,8 +85,8 @@ def main() -> None:
         gravity = config.train.remove_gravity
         print(f"\n{args.checkpoint}: mean gyro correction, its std in time (mrad/s); ROE of the model | its mean as a")
         print("constant | the flight's own constant + the model's time-varying part | the running mean of its")
-        print("correction (causal)")
-        for name in TRAIN + TEST:
+        print("correction (causal); std of 1-s means of the correction | of the flight's own error minus its constant")
+        for name in dict.fromkeys(TRAIN + TEST + scored):
             seq = flights[name]
             out = correct(model, seq, gravity)
             d_gyro = out.d_gyro.numpy()
@@ -74,12 +94,14 @@ def main() -> None:
                 f"  {name:16s} mean {np.array2string(-d_gyro.mean(0) * 1e3, precision=2)} "
                 f"std {np.array2string(d_gyro.std(0) * 1e3, precision=2)}"
             )
-            if name in TEST:
+            if name in scored:
                 varying = d_gyro - d_gyro.mean(0)
                 running = np.cumsum(d_gyro, axis=0) / np.arange(1, len(d_gyro) + 1)[:, None]
                 line += (
                     f"; ROE {roe(seq, out.gyro.numpy()):.4f} | {roe(seq, seq.gyro + d_gyro.mean(0)):.4f} | "
-                    f"{roe(seq, seq.gyro - own[name] + varying):.4f} | {roe(seq, seq.gyro + running):.4f}"
+                    f"{roe(seq, seq.gyro - own[name] + varying):.4f} | {roe(seq, seq.gyro + running):.4f}; "
+                    f"1-s std {np.array2string(second_means_std(seq, d_gyro) * 1e3, precision=2)} | "
+                    f"{np.array2string(own_residual_std(seq) * 1e3, precision=2)}"
                 )
             print(line)
 

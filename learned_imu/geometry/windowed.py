@@ -140,7 +140,7 @@ def preintegrate_windows(
         lever = _mm(rot.to(d), step_jacobian.to(d))  # R_{j+1} Jr(w_j h_j)
         coupled = known is None
         noise = _noise_prefix(lever, frame.to(d), h.to(d), wide, gyro_cov, acc_cov, coupled)
-        window = noise[..., b] - noise[..., a]  # (..., 6, 3, 3, P): S_b - S_a
+        window = _window_sums(noise, a, b)  # (..., 6, 3, 3, P): S_b - S_a
         cov = _window_covariance(window, rot_ab.to(d), f_a.to(d), r_b.to(d), wide.vel[..., b], wide.pos[..., b],
                                  wide.time[..., b], coupled, diagonal)  # fmt: skip
 
@@ -177,8 +177,8 @@ def _recentred(prefix: _Prefix) -> _Prefix:
 
 
 def _noise_prefix(lever, rot_before, h, prefix: _Prefix, gyro_cov, acc_cov, coupled: bool = True) -> torch.Tensor:
-    """(..., 6, 3, 3, N + 1) the blocks (phi phi, v phi, v v, p phi, p v, p p) of ``S_n``, the cumulative sum of
-    ``Phi_{j+1}^-1 B_j Q_j B_j^T Phi_{j+1}^-T`` (module docstring), chunk frame. ``coupled=False``: velocity and
+    """(..., 6, 3, 3, N) the blocks (phi phi, v phi, v v, p phi, p v, p p) of the terms
+    ``Phi_{j+1}^-1 B_j Q_j B_j^T Phi_{j+1}^-T`` whose cumulative sum is ``S_n`` (module docstring), chunk frame. ``coupled=False``: velocity and
     position integrated with a known rotation, so the rotation error does not enter them (``Phi`` has no
     ``[V]x``, ``[P]x`` blocks); ``rot_before`` is then that rotation."""
     hh = h[..., None, :, :]
@@ -197,7 +197,7 @@ def _noise_prefix(lever, rot_before, h, prefix: _Prefix, gyro_cov, acc_cov, coup
         k_v_g = k_p_g = torch.zeros_like(g)
         v_v, p_v, p_p = q, c * q, c * c * q
     increments = torch.stack((g, k_v_g, v_v, k_p_g, p_v, p_p), dim=-4)
-    return _zero_first(torch.cumsum(increments, dim=-1))
+    return increments
 
 
 def _window_covariance(
@@ -247,6 +247,31 @@ def _check_rotation(rotation, gyro: torch.Tensor) -> torch.Tensor:
     if not torch.isfinite(rotation).all():
         raise InputError("preintegrate_windows: rotation contains NaN or Inf")
     return rotation.to(gyro.dtype).movedim(-3, -1).contiguous()
+
+
+def _window_sums(terms: torch.Tensor, a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """(..., P) sums ``sum_{a_p <= j < b_p} terms[..., j]`` of per-sample terms (..., N): the difference of two
+    entries of their cumulative sum, with a backward that is one cumulative sum of a difference array instead of
+    autograd's gather, subtraction and reversed cumulative sum (each the size of the terms)."""
+    return _WindowSums.apply(terms, a, b)
+
+
+class _WindowSums(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, terms, a, b):
+        prefix = _zero_first(torch.cumsum(terms, dim=-1))
+        ctx.save_for_backward(a, b)
+        ctx.samples = terms.shape[-1]
+        return prefix.index_select(-1, b) - prefix.index_select(-1, a)
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad):
+        a, b = ctx.saved_tensors
+        edges = grad.new_zeros(*grad.shape[:-1], ctx.samples + 1)
+        edges.index_add_(-1, a, grad)
+        edges.index_add_(-1, b, -grad)
+        return torch.cumsum(edges, dim=-1)[..., : ctx.samples], None, None
 
 
 def _zero_first(x: torch.Tensor) -> torch.Tensor:

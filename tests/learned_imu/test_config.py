@@ -82,14 +82,29 @@ def test_euroc_config_is_the_papers_split_and_validation_never_touches_a_test_fl
     config = load_config(Path(__file__).parents[2] / "configs" / "euroc.yaml", data_root=shared_data)
     name = lambda spec: Path(spec.path).name  # noqa: E731
     assert {name(s) for s in config.data.train} == PAPER_TRAIN
-    assert {name(s) for s in config.data.val} <= PAPER_TRAIN
+    assert all(s.span == (0.0, 1.0) for s in config.data.train)  # the six flights in full, as the official code
+    assert {name(s) for s in config.data.val} <= PAPER_TRAIN  # the official "test" loader: training flights only
     assert {name(s) for s in config.data.evaluate} == {"MH_04_difficult", "V1_03_difficult", "V2_02_medium"}
     assert {name(s) for s in config.data.evaluate} <= PAPER_TEST
-    for flight in PAPER_TRAIN:  # each flight's training and validation parts do not overlap
-        train = [s.span for s in config.data.train if name(s) == flight]
-        val = [s.span for s in config.data.val if name(s) == flight]
-        assert all(t[1] <= v[0] or v[1] <= t[0] for t in train for v in val), flight
-    assert config.train.scale_noise_on_val and config.evaluation.frames == 10
+    assert not config.train.scale_noise_on_val  # no held-out flight to scale the noise on
+    assert (config.train.stride, config.train.window, config.train.every) == (10, 1000, 50)  # the official density
+    assert config.train.chunk >= config.train.window and config.evaluation.frames == 10
+
+
+def test_euroc_protocol_configs_choose_on_training_flights_only(shared_data):
+    """configs/euroc_official.yaml validates on its training flights (the official protocol); euroc_leave_out.yaml
+    holds two training flights out whole and validates on them; neither trains or selects on a test flight (the
+    official one scores the test flights after training, the leave-out one not even that)."""
+    name = lambda spec: Path(spec.path).name  # noqa: E731
+    configs = Path(__file__).parents[2] / "configs"
+    official = load_config(configs / "euroc_official.yaml", data_root=shared_data)
+    assert {name(s) for s in official.data.train} == {name(s) for s in official.data.val} == PAPER_TRAIN
+    leave_out = load_config(configs / "euroc_leave_out.yaml", data_root=shared_data)
+    train, val = {name(s) for s in leave_out.data.train}, {name(s) for s in leave_out.data.val}
+    assert train | val == PAPER_TRAIN and not train & val and len(val) == 2
+    for config in (official, leave_out):
+        assert not {name(s) for s in config.data.train + config.data.val} & PAPER_TEST
+    assert not {name(s) for s in leave_out.data.evaluate} & PAPER_TEST
 
 
 def test_data_root_override_moves_every_sequence_list(tmp_path, shared_data):

@@ -56,6 +56,11 @@ def test_round_trip_and_defaults(tmp_path):
         ("train: {lr: fast}\n", "key 'train.lr': expected float"),
         ("bogus: 1\n", "unknown key 'bogus'"),
         ("model: {init_gyro_density: 1.0e-8}\n", r"'model.init_gyro_density' is now 'model.init_gyro_cov' \(sigma\^2"),
+        ("train: {window: 1000, chunk: 500}\n", r"train.chunk must be 0 \(windows one by one\) or at least"),
+        ("train: {gt_rotation: true}\n", "train.gt_rotation must be false unless train.chunk is set"),
+        ("train: {lr: 1.0e-3, min_lr: 1.0e-2}\n", r"train.min_lr must be in \[0, train.lr"),
+        ("train: {val_stride: -1}\n", "train.val_stride must be a whole number >= 0"),
+        ("loss: {covariance_by_block: 1}\n", "key 'loss.covariance_by_block': expected bool"),
     ],
 )
 def test_bad_keys_are_named(tmp_path, extra, message):

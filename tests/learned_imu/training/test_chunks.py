@@ -71,6 +71,14 @@ def held_starts(chunks: Chunks, offsets: np.ndarray) -> tuple[np.ndarray, np.nda
     return offsets[b] + chunks.starts.numpy()[m], b, m
 
 
+def both_paths(seq, chunk: int, length: int, every: int, stride: int, context: int):
+    """float64 chunks and windows of ``seq``, the chunks' offsets in it, and their valid (start, chunk, slot)."""
+    chunks = make_chunks(seq, chunk, length, every, stride, dtype=F64, context=context)
+    windows = make_windows(seq, length, every, stride, dtype=F64, context=context)
+    offsets = chunk_origins(chunks, seq, sample_index(seq, F64))
+    return chunks, windows, offsets, held_starts(chunks, offsets)
+
+
 def relative(x: torch.Tensor, y: torch.Tensor) -> float:
     return float((x - y).abs().max() / y.abs().max())
 
@@ -131,11 +139,8 @@ def flight_errors(mh01):
     per-sample corrections and densities (those of the chunk that owns each window)."""
     seq = mh01.part(0.3, 0.42)
     length, every, stride, context = 1000, 50, 10, 18
-    chunks = make_chunks(seq, 3000, length, every, stride, dtype=F64, context=context)
-    windows = make_windows(seq, length, every, stride, dtype=F64, context=context)
+    chunks, windows, _, (starts, b, m) = both_paths(seq, 3000, length, every, stride, context)
     index = sample_index(seq, F64)
-    offsets = chunk_origins(chunks, seq, index)
-    starts, b, m = held_starts(chunks, offsets)
     order = {int(s): i for i, s in enumerate(window_starts(windows, index))}
     pick = np.array([order[int(s)] for s in starts])  # the make_windows window of each valid (b, m)
     g = torch.Generator().manual_seed(0)
@@ -188,11 +193,8 @@ def test_windows_across_a_real_kitti_gap_are_masked_out(shared_data, drive, gaps
     gap = gap_indices(seq.t)  # sample gap[i] is followed by a gap
     assert len(gap) == gaps and np.diff(seq.t)[gap].min() > 0.06
     length, every, stride, context = 200, 10, 20, 10
-    chunks = make_chunks(seq, 1000, length, every, stride, dtype=F64, context=context)
-    windows = make_windows(seq, length, every, stride, dtype=F64, context=context)
+    chunks, windows, offsets, (starts, b, m) = both_paths(seq, 1000, length, every, stride, context)
     index = sample_index(seq, F64)
-    offsets = chunk_origins(chunks, seq, index)
-    starts, b, m = held_starts(chunks, offsets)
     window_at = window_starts(windows, index)
     np.testing.assert_array_equal(np.sort(starts), np.sort(window_at))
     assert len(np.unique(starts)) == len(starts)

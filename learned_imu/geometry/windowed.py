@@ -139,7 +139,7 @@ def preintegrate_windows(
         wide = _recentred(_Prefix(*(x.to(d) for x in prefix)))
         lever = _mm(rot.to(d), step_jacobian.to(d))  # R_{j+1} Jr(w_j h_j)
         coupled = known is None
-        noise = _noise_prefix(lever, frame.to(d), h.to(d), wide, gyro_cov, acc_cov, coupled)
+        noise = _noise_terms(lever, frame.to(d), h.to(d), wide, gyro_cov, acc_cov, coupled)
         window = _window_sums(noise, a, b)  # (..., 6, 3, 3, P): S_b - S_a
         cov = _window_covariance(window, rot_ab.to(d), f_a.to(d), r_b.to(d), wide.vel[..., b], wide.pos[..., b],
                                  wide.time[..., b], coupled, diagonal)  # fmt: skip
@@ -176,11 +176,11 @@ def _recentred(prefix: _Prefix) -> _Prefix:
     return _Prefix(prefix.rot, prefix.vel - v_r, prefix.pos - prefix.pos[..., r : r + 1] - t * v_r, t)
 
 
-def _noise_prefix(lever, rot_before, h, prefix: _Prefix, gyro_cov, acc_cov, coupled: bool = True) -> torch.Tensor:
+def _noise_terms(lever, rot_before, h, prefix: _Prefix, gyro_cov, acc_cov, coupled: bool = True) -> torch.Tensor:
     """(..., 6, 3, 3, N) the blocks (phi phi, v phi, v v, p phi, p v, p p) of the terms
-    ``Phi_{j+1}^-1 B_j Q_j B_j^T Phi_{j+1}^-T`` whose cumulative sum is ``S_n`` (module docstring), chunk frame. ``coupled=False``: velocity and
-    position integrated with a known rotation, so the rotation error does not enter them (``Phi`` has no
-    ``[V]x``, ``[P]x`` blocks); ``rot_before`` is then that rotation."""
+    ``Phi_{j+1}^-1 B_j Q_j B_j^T Phi_{j+1}^-T`` whose cumulative sum is ``S_n`` (module docstring), chunk frame.
+    ``coupled=False``: velocity and position integrated with a known rotation, so the rotation error does not enter
+    them (``Phi`` has no ``[V]x``, ``[P]x`` blocks); ``rot_before`` is then that rotation."""
     hh = h[..., None, :, :]
     v_next, p_next, t_next = prefix.vel[..., 1:], prefix.pos[..., 1:], prefix.time[..., None, :, 1:]
     g = _mm(lever * (gyro_cov * h)[..., None, :, :], lever, True)  # gyro noise of the phi increment
@@ -206,7 +206,7 @@ def _window_covariance(
     """(..., 9, 9, P) covariance of each window in its own frame and GTSAM's tangent chart, order [rotation,
     position, velocity], from ``S_b - S_a`` (``window``, chunk frame): ``C Phi_b (S_b - S_a) Phi_b^T C^T``, block by
     block (module docstring). ``r_a``: the rotation velocity and position were integrated with, at the window's
-    start; ``coupled`` as in ``_noise_prefix``. ``diagonal``: only the diagonal, (..., 9, P)."""
+    start; ``coupled`` as in ``_noise_terms``. ``diagonal``: only the diagonal, (..., 9, P)."""
     d_rr, d_vr, d_vv, d_pr, d_pv, d_pp = window.unbind(-4)
     t = t_b[..., None, :, :]
     if coupled:

@@ -108,3 +108,17 @@ def test_shards_partition_each_global_batch_and_weight_its_mean():
         averaged = sum(scale * mean for (_, scale), mean in zip(parts, shard_means, strict=True)) / 4
         assert float(averaged) == pytest.approx(float(losses[:size].mean()), rel=1e-6)
     assert shard(batch, None) == (batch, 1.0)
+
+
+def test_chunk_shards_are_weighted_by_the_windows_they_hold():
+    """Chunks hold different numbers of valid windows: each rank's loss, a mean over its chunks' windows, scaled by
+    ``shard``, averages to the mean over every window of the global batch."""
+    g = torch.Generator().manual_seed(1)
+    counts = torch.tensor([201, 120, 201, 0, 186, 201, 57])  # valid windows of each chunk (one with none)
+    losses = [torch.rand(int(n), generator=g, dtype=torch.float64) for n in counts]  # per-window losses
+    for size in (7, 5, 3):
+        batch = torch.arange(size)
+        parts = [shard(batch, World(rank, 3), counts) for rank in range(3)]
+        means = [torch.cat([losses[i] for i in index]).mean() if counts[index].sum() else 0.0 for index, _ in parts]
+        averaged = sum(scale * mean for (_, scale), mean in zip(parts, means, strict=True)) / 3
+        assert float(averaged) == pytest.approx(float(torch.cat(losses[:size]).mean()), rel=1e-12)

@@ -34,8 +34,8 @@ the prefix of the covariance is taken from the chunk's middle state (``_recentre
 16x smaller. Measured (``tests/learned_imu/geometry/test_windowed.py``): in float64 every window of a 20-s chunk
 equals ``preintegrate`` on the window alone to 1e-9 relative (deltas ~1e-13, covariance blocks ~1e-11 for
 1000-sample windows, ~1e-10 for 333-sample ones); in float32 the position deltas of 5-s windows late in a 20-s
-EuRoC chunk are off by up to 1.8 mm (1.6e-5 relative), ten times what float32 loses on one window alone and a
-tenth of the errors the loss sees, which is why float32 is not the default.
+EuRoC chunk are off by up to 1.8 mm (1.6e-5 relative), within an order of magnitude of the errors the loss sees
+(centimetres over 5 s), which is why float32 is not the default.
 """
 
 from __future__ import annotations

@@ -23,7 +23,7 @@ import torch
 from learned_imu.datasets.sequence import ImuSequence
 from learned_imu.errors import InputError
 from learned_imu.geometry.preintegration import NavState, Preintegrated
-from learned_imu.geometry.windowed import preintegrate_windows
+from learned_imu.geometry.windowed import preintegrate_windows, window_ends
 from learned_imu.network.model import Correction
 from learned_imu.training.losses import errors_against, truth_deltas
 from learned_imu.training.windows import usable_windows
@@ -210,7 +210,7 @@ def _truth_deltas(sequence: ImuSequence, starts: np.ndarray, length: int, every:
     """Ground-truth deltas (float64) of the windows starting at the sequence indices ``starts`` (C, M) to their K
     supervised states; windows not ``valid`` get identity deltas (their ground truth may be invalid, even NaN)."""
     gt = sequence.gt
-    ends = starts[..., None] + every * np.arange(1, length // every + 1)  # (C, M, K)
+    ends = starts[..., None] + window_ends(torch.zeros(1, dtype=torch.long), length, every)[0].numpy()  # (C, M, K)
     elapsed = np.concatenate([[0.0], np.cumsum(sequence.dt)])
     states = [NavState(*(torch.as_tensor(x[i]) for x in (gt.rot, gt.vel, gt.pos))) for i in (starts, ends)]
     truth = truth_deltas(*states, torch.as_tensor(elapsed[ends] - elapsed[starts][..., None]), sequence.gravity)

@@ -99,7 +99,10 @@ def _run_pgo(config, out, json_out, csv_out, rrd, png, epochs, progress, data_ro
         console.print(f"written: {path}")
 
 
-READER_OPTION_HELP = "a reader option as key=value (repeatable), e.g. on_backward=drop"
+READER_OPTION_HELP = (
+    "a reader option as key=value (repeatable): e.g. on_backward=drop, on_duplicate=drop, on_gap=keep; lists as "
+    "gt_pos=px,py,pz or gt_pos=[px,py,pz]"
+)
 GPS_HELP = "GPS CSV (t,x,y,z or t,lat,lon,alt; optional sigma columns); default: the log's own fixes"
 
 
@@ -114,20 +117,41 @@ def fuse(
     checkpoint: str = typer.Option(None, help="a trained model; without it the raw IMU with fixed noise"),
     bias: bool = typer.Option(False, help="estimate a bias state per keyframe"),
     keyframes: str = typer.Option("fixes", help="'fixes' (a keyframe at every fused fix) or an interval like '1s'"),
-    gyro_noise_density: float = typer.Option(0.004, help="without --checkpoint: gyro sigma, rad/s/sqrt(Hz)"),
-    acc_noise_density: float = typer.Option(0.08, help="without --checkpoint: acc sigma, m/s^2/sqrt(Hz)"),
+    gyro_noise_density: float = typer.Option(
+        None, help="gyro sigma, rad/s/sqrt(Hz), without --checkpoint only (refused with it); default 0.004"
+    ),
+    acc_noise_density: float = typer.Option(
+        None, help="acc sigma, m/s^2/sqrt(Hz), without --checkpoint only (refused with it); default 0.08"
+    ),
     reader_option: list[str] = typer.Option(None, help=READER_OPTION_HELP),  # noqa: B008 (typer reads repeats as a list)
 ) -> None:
-    """Fuse a user's own IMU + GPS log: robust GPS factors, learned (or fixed) IMU factors, optional bias states;
-    writes the fused trajectory (TUM, for evo), its marginal covariances, a Rerun recording and a PNG."""
+    """Fuse a user's own IMU + GPS log: robust GPS factors, learned (or fixed) IMU factors, optional bias states.
+
+    Writes to --out: fused.tum (the estimated keyframe states, TUM: t x y z qx qy qz qw, world <- IMU),
+    fused_imu_rate.tum (every IMU sample: each keyframe's state carried forward by the IMU to the next one; compare
+    this one with evo against a ground truth), marginals.npz (keyframe positions and their 3x3 covariances),
+    fused.rrd (Rerun), fused.png and summary.json (RMSE against the fixes; with ground truth, the ATE after an SE(3)
+    alignment and without one). Given noise densities 3x under or 10x over the samples' own white noise are warned
+    about, naming both; GPS files that fit the IMU far better in another unit (lat/lon in radians, x/y/z in km or
+    mm) are refused."""
     from pathlib import Path
 
-    from fusion.fuse import BiasStates, fuse, read_gps_csv, write_outputs
+    from fusion.fuse import BiasStates, check_gps_units, fuse, read_gps_csv, write_outputs
 
     if gps_every < 1:
         raise typer.BadParameter(f"--gps-every must be >= 1, got {gps_every}")
     _check_outputs(folders={"--out": out})
-    _check_noise_flags(gyro_noise_density, acc_noise_density)
+    given = (gyro_noise_density, acc_noise_density)
+    if checkpoint and any(v is not None for v in given):
+        raise typer.BadParameter(
+            "--gyro-noise-density / --acc-noise-density apply without --checkpoint only: the model predicts the "
+            "IMU's noise"
+        )
+    if (gyro_noise_density is None) != (acc_noise_density is None):
+        raise typer.BadParameter("give both --gyro-noise-density and --acc-noise-density, or neither")
+    noise = None if gyro_noise_density is None else (gyro_noise_density, acc_noise_density)
+    if noise is not None:
+        _check_noise_flags(*noise)
     keyframe_s = None
     if keyframes != "fixes":
         try:
@@ -140,6 +164,8 @@ def fuse(
             raise typer.BadParameter(f"--keyframes: the interval must be positive, got {keyframes!r}")
     sequence = _read_with_options(dataset, path, reader_option or [])
     fixes = read_gps_csv(gps, gps_sigma) if gps else sequence.gps
+    if gps:
+        check_gps_units(sequence, gps, fixes, gps_sigma)
     if fixes is None:
         raise typer.BadParameter(f"{path}: the log has no GPS fixes; pass --gps FILE")
     used = fixes[::gps_every]
@@ -149,14 +175,18 @@ def fuse(
 
         model = model_from_checkpoint(checkpoint)[0]
     states = BiasStates(1.67e-4, 2.91e-6, 0.1, 0.01, factor="combined") if bias else None  # CombinedImuFactor
-    result = fuse(sequence, used, model, keyframe_s=keyframe_s, bias=states,
-                  noise_density=(gyro_noise_density, acc_noise_density))  # fmt: skip
+    result = fuse(sequence, used, model, keyframe_s=keyframe_s, bias=states, noise_density=noise)
     summary, written = write_outputs(result, Path(out), reference=fixes)
     console = _wide_console()
     console.print(
         f"fused {len(result.gps.t)} fixes over {len(result.solution.trajectory.t)} keyframes of {sequence.name}: "
         f"RMSE against all {summary.reference_fixes} fixes {summary.rmse_to_gps_m:.3f} m"
-        + (f", ATE against the ground truth {summary.ate_m:.3f} m" if summary.ate_m is not None else "")
+        + (
+            f", ATE against the ground truth {summary.ate_aligned_m:.3f} m SE(3)-aligned, "
+            f"{summary.ate_unaligned_m:.3f} m unaligned"
+            if summary.ate_aligned_m is not None
+            else ""
+        )
     )
     for item in written:
         console.print(f"written: {item}")
@@ -174,8 +204,11 @@ def _check_noise_flags(gyro: float, acc: float) -> None:
 
 
 def _read_with_options(dataset: str, path: str, options: list[str], imu_file: str | None = None):
-    """One sequence read with ``key=value`` reader options (YAML values: ``gt_pos=[px,py,pz]``), each checked
-    against the reader's signature (``learned_imu.datasets.check_options``)."""
+    """One sequence read with ``key=value`` reader options, each checked against the reader's signature
+    (``learned_imu.datasets.check_options``). Values are YAML (``gravity=9.81``, ``header=true``); a list option
+    takes ``gt_pos=px,py,pz`` or ``gt_pos=[px,py,pz]`` alike (column names or 0-based indices)."""
+    import inspect
+
     import yaml
 
     from learned_imu.datasets import READERS, read_sequence
@@ -183,10 +216,14 @@ def _read_with_options(dataset: str, path: str, options: list[str], imu_file: st
     if dataset not in READERS:
         raise typer.BadParameter(f"--dataset: unknown reader {dataset!r}; known: {', '.join(sorted(READERS))}")
     parsed = {"imu_file": imu_file} if imu_file else {}
+    signature = inspect.signature(READERS[dataset]).parameters.items()
+    lists = {name for name, p in signature if "Sequence[" in str(p.annotation)}
     for item in options:
         key, sep, text = item.partition("=")
         if not sep or not key:
             raise typer.BadParameter(f"--reader-option: expected key=value, got {item!r}")
+        if key in lists and "," in text and not text.lstrip().startswith("["):
+            text = f"[{text}]"  # gt_pos=px,py,pz reads as gt_pos=[px,py,pz]
         try:
             parsed[key] = yaml.safe_load(text)
         except yaml.YAMLError:
@@ -504,12 +541,21 @@ def main() -> None:
     import sys
 
     try:
-        app()
+        code = app(standalone_mode=False)  # typer's own usage errors come back here, to print as one line too
+    except typer.TyperException as error:  # a bad flag or value: typer itself would draw a multi-line box
+        context = getattr(error, "ctx", None)
+        command = context.command_path if context is not None and context.command_path else "airimu"
+        print(f"airimu: error: {' '.join(error.format_message().split())} (see {command} --help)", file=sys.stderr)
+        sys.exit(2)
+    except typer.Abort:
+        print("airimu: aborted", file=sys.stderr)
+        sys.exit(1)
     except Exception as error:
         if os.environ.get("AIRIMU_DEBUG") or not isinstance(error, _own_errors()):
             raise
         print(f"airimu: error: {error}", file=sys.stderr)
         sys.exit(2)
+    sys.exit(code if isinstance(code, int) else 0)
 
 
 def _own_errors() -> tuple[type, ...]:

@@ -12,11 +12,20 @@ GPS files (``read_gps_csv``): comma separated with a header naming the columns: 
 then either ``x, y, z`` (m, a local metric z-up frame) or ``lat, lon, alt`` (degrees, m; converted to a local
 east / north / up frame at the first fix through pymap3d); optional per-fix one-sigma ``sigma`` (m, all axes) or
 ``sigma_x, sigma_y, sigma_z``. GTSAM's ``KittiGps_converted.txt`` (``Time,X,Y,Z``) reads as it is.
+
+Not fused wrong in silence: given noise densities that the samples themselves contradict (``factors.noise``: a
+warning naming both numbers when a sigma lies 3x under or 10x over the samples' own white noise: a variance given
+for a sigma, another unit); refused: a GPS track that fits the
+IMU far better read in another unit (``check_gps_units``, ``fusion.gps_units``: lat/lon in radians read as degrees,
+x/y/z in km or mm; ``airimu fuse`` runs it on every GPS file).
+Scoring (``write_outputs``): the fused track lives in the GPS frame, the ground truth in its own, so the ATE is
+reported both after an SE(3) alignment of the ground truth to the fused track (as ``evo_ape -a``) and without one.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import logging
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,30 +33,37 @@ from pathlib import Path
 import numpy as np
 
 from factors import load_export
-from fusion.graph import BiasStates, FusionSettings, Solution, build_graph, solve
+from factors.noise import noise_mismatch
+from fusion.graph import BiasStates, FusionSettings, Solution, Trajectory, build_graph, solve
 from fusion.pgo import fixes_on_samples
 from learned_imu.datasets.sequence import GpsFixes, ImuSequence
-from learned_imu.errors import DataError
+from learned_imu.errors import DataError, InputError
 from learned_imu.export import export_preintegration, keyframes_every, nearest_samples
 from learned_imu.network.model import Correction
 
 DEFAULT_GPS_SIGMA_M = 1.0  # per axis, when the file gives none
 # without a model: VINS-Mono's EuRoC setting (sigmas, rad/s/sqrt(Hz) and m/s^2/sqrt(Hz)), a consumer MEMS
 DEFAULT_NOISE_DENSITY = (0.004, 0.08)
+ANGLE_UNITS = ("deg", "rad")
+UNIT_REFUSAL_RATIO = 3.0  # refused when another reading of the file leaves this many times less motion unexplained
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
 class FusedSummary:
     """``summary.json``: the sequence, the keyframes solved, the fixes fused and the reference fixes inside the
-    trajectory's span, the position RMSE at those fixes (m) and the ATE against the ground truth (m; None without
-    one)."""
+    trajectory's span, the position RMSE at those fixes (m), and where the sequence has ground truth the ATE (m,
+    RMSE over every IMU sample of ``fused_imu_rate.tum`` with valid ground truth) after a rigid SE(3) alignment of
+    the ground truth to the fused track (``ate_aligned_m``; as ``evo_ape tum truth fused_imu_rate.tum -a``) and
+    without one (``ate_unaligned_m``: meaningful only when the GPS frame is the ground truth's); None without."""
 
     sequence: str
     keyframes: int
     fused_fixes: int
     reference_fixes: int
     rmse_to_gps_m: float
-    ate_m: float | None
+    ate_aligned_m: float | None
+    ate_unaligned_m: float | None
 
 
 @dataclass(frozen=True, eq=False)
@@ -68,7 +84,7 @@ def fuse(
     settings: FusionSettings | None = None,
     keyframe_s: float | None = None,
     bias: BiasStates | None = None,
-    noise_density: tuple[float, float] = DEFAULT_NOISE_DENSITY,
+    noise_density: tuple[float, float] | None = None,
 ) -> Fused:
     """Fuse ``sequence``'s IMU with ``gps`` (default: the sequence's own fixes); see the module docstring.
 
@@ -77,18 +93,23 @@ def fuse(
         settings: graph and solver options; default: robust (Huber) GPS factors.
         keyframe_s: a keyframe every this many seconds; None: one at every fix.
         bias: estimate a bias state per keyframe (``fusion.graph.BiasStates``).
-        noise_density: (gyro, acc) sigmas without a model.
+        noise_density: (gyro, acc) sigmas, rad/s/sqrt(Hz) and m/s^2/sqrt(Hz), without a model (a model predicts
+            its own noise: giving both is an ``InputError``); None: ``DEFAULT_NOISE_DENSITY``. Given ones are
+            checked against the samples' own white noise (module docstring).
     """
     from learned_imu.network.inference import correct
 
     settings = settings or FusionSettings(gps_robust="huber")
+    where = sequence.source or sequence.name
     fixes = gps if gps is not None else sequence.gps
+    if model is not None and noise_density is not None:
+        raise InputError("fuse: noise_density applies without a model only (the model predicts the IMU's noise)")
     if fixes is None or len(fixes.t) < 2:
-        raise DataError(sequence.source or sequence.name, "gps", "fusing needs at least two GPS fixes")
+        raise DataError(where, "gps", "fusing needs at least two GPS fixes")
     sequence = dataclasses.replace(sequence, gps=fixes)
     inside = (fixes.t >= sequence.t[0]) & (fixes.t <= sequence.t[-1])
     if inside.sum() < 2:
-        raise DataError(sequence.source or sequence.name, "gps", "fewer than two fixes lie within the IMU's time span")
+        raise DataError(where, "gps", "fewer than two fixes lie within the IMU's time span")
     if keyframe_s is None:
         sequence = fixes_on_samples(sequence)
         index = np.unique(nearest_samples(sequence, sequence.gps.t)[0])
@@ -99,22 +120,37 @@ def fuse(
     else:
         import torch
 
+        if noise_density is not None:
+            _check_noise(sequence, noise_density)
         gyro, acc = torch.as_tensor(sequence.gyro), torch.as_tensor(sequence.acc)
         zero = torch.zeros_like(gyro)
-        gyro_cov, acc_cov = (torch.full_like(gyro, s**2) for s in noise_density)
+        gyro_cov, acc_cov = (torch.full_like(gyro, s**2) for s in noise_density or DEFAULT_NOISE_DENSITY)
         correction = Correction(gyro, acc, zero, zero, gyro_cov, acc_cov)
     blind = dataclasses.replace(sequence, gt=None)  # the first state from the GPS track, not from ground truth
     with tempfile.TemporaryDirectory() as folder:
-        path = export_preintegration(Path(folder) / "fuse.npz", blind, index, correction=correction)
-        export = load_export(path)
-        used = sequence.gps
-        graph, values = build_graph(export, used, settings, bias=bias)
-        solution = solve(graph, values, export.keyframe_t, settings)
-    return Fused(solution, correction, used, sequence)
+        export = load_export(export_preintegration(Path(folder) / "fuse.npz", blind, index, correction=correction))
+        solution = _solved(export, sequence.gps, settings, bias)
+    return Fused(solution, correction, sequence.gps, sequence)
 
 
-def read_gps_csv(path: str | Path, sigma_m: float | None = None) -> GpsFixes:
-    """GPS fixes from a CSV (module docstring); ``sigma_m`` (per axis) where the file has no sigma column."""
+def _solved(export, fixes: GpsFixes, settings: FusionSettings, bias: BiasStates | None) -> Solution:
+    graph, values = build_graph(export, fixes, settings, bias=bias)
+    return solve(graph, values, export.keyframe_t, settings)
+
+
+def _check_noise(sequence: ImuSequence, noise_density: tuple[float, float]) -> None:
+    """Warn, naming both numbers, about given densities that the samples contradict (``factors.noise``)."""
+    for sensor, given, samples in zip(("gyro", "acc"), noise_density, (sequence.gyro, sequence.acc), strict=True):
+        message = noise_mismatch(sensor, given, samples, sequence.dt)
+        if message:
+            log.warning("%s: %s", sequence.source or sequence.name, message)
+
+
+def read_gps_csv(path: str | Path, sigma_m: float | None = None, angle_unit: str = "deg") -> GpsFixes:
+    """GPS fixes from a CSV (module docstring); ``sigma_m`` (per axis) where the file has no sigma column;
+    ``angle_unit``: "deg" (the default) or "rad", how the lat/lon columns are read."""
+    if angle_unit not in ANGLE_UNITS:
+        raise InputError(f"read_gps_csv: angle_unit must be one of {', '.join(ANGLE_UNITS)}, got {angle_unit!r}")
     from learned_imu.datasets._table import read_table
 
     path = Path(path)
@@ -139,9 +175,50 @@ def read_gps_csv(path: str | Path, sigma_m: float | None = None) -> GpsFixes:
         row = int(np.argmax(np.diff(t) <= 0)) + 1
         raise DataError(path, "t", "time must increase from fix to fix", line=table.line_of(row))
     if layout[0] == "lat":
-        pos = _enu(pos, path)
+        pos = _enu(np.column_stack([np.degrees(pos[:, :2]), pos[:, 2]]) if angle_unit == "rad" else pos, path)
     sigma = _sigmas(table, names, path, sigma_m)
     return GpsFixes(t=t, pos=pos, sigma=sigma)
+
+
+def gps_file_layout(path: str | Path) -> str:
+    """"lat/lon" or "x/y/z": which position columns a GPS CSV has (``read_gps_csv``'s rule)."""
+    from learned_imu.datasets._table import read_table
+
+    names = {n.strip().lower() for n in read_table(Path(path), delimiter=",", min_columns=4, field="gps").header}
+    return "lat/lon" if {"lat", "lon", "alt"} <= names else "x/y/z"
+
+
+def check_gps_units(sequence: ImuSequence, path: str | Path, fixes: GpsFixes, sigma_m: float | None = None) -> None:
+    """Refuse a GPS file whose track the IMU explains far worse as read than in another unit: the file re-read
+    with lat/lon in radians (lat/lon files), or x/y/z scaled as km or mm (x/y/z files); a ``DataError`` naming the
+    columns and the likely unit when another reading leaves ``UNIT_REFUSAL_RATIO`` times less motion unexplained
+    (``fusion.gps_units.track_misfit``). Measured on 2011_10_03_drive_0027 (fixes from its ground truth, 0.3 m
+    noise): as read 0.64 m/s, lat/lon written in radians 2.94 m/s, x/y/z written in km 2.99 m/s; GTSAM's own
+    KittiGps_converted.txt 0.30 m/s (tests/fusion/test_fuse.py)."""
+    from fusion.gps_units import track_misfit
+
+    as_read = track_misfit(sequence, fixes)
+    if as_read is None:
+        return
+    if gps_file_layout(path) == "lat/lon":
+        alternatives = {"lat/lon in radians": lambda: read_gps_csv(path, sigma_m, angle_unit="rad")}
+        columns = "lat/lon"
+    else:
+        scaled = lambda f: lambda: GpsFixes(fixes.t, fixes.pos[0] + f * (fixes.pos - fixes.pos[0]), fixes.sigma)  # noqa: E731
+        alternatives = {"x/y/z in km": scaled(1000.0), "x/y/z in mm": scaled(0.001)}
+        columns = "x/y/z"
+    for unit, reading in alternatives.items():
+        try:
+            other = track_misfit(sequence, reading())
+        except (DataError, ValueError):  # not even readable so (e.g. radians beyond +-pi/2)
+            continue
+        if other is not None and other * UNIT_REFUSAL_RATIO < as_read:
+            raise DataError(
+                path, columns,
+                f"the IMU explains this GPS track far worse as read ({as_read:.3g} m/s of its velocity changes "
+                f"unexplained) than with {unit} ({other:.3g} m/s): {unit}? The {columns} columns are read as "
+                + ("degrees" if columns == "lat/lon" else "m"),
+            )  # fmt: skip
 
 
 def _sigmas(table, names: list[str], path: Path, sigma_m: float | None) -> np.ndarray:
@@ -168,19 +245,21 @@ def _enu(geodetic: np.ndarray, path: Path) -> np.ndarray:
 
 
 def write_outputs(result: Fused, folder: Path, reference: GpsFixes | None = None) -> tuple[FusedSummary, list[Path]]:
-    """``fused.tum`` (TUM, quaternion x y z w, for evo), ``marginals.npz`` (``t`` (K,), ``pos`` (K, 3) m,
-    ``pos_cov`` (K, 3, 3) m^2, world frame), ``fused.rrd``, ``fused.png`` and ``summary.json`` (RMSE against the
-    ``reference`` fixes, default the fused ones, and the ATE against the ground truth where the sequence has one:
-    meaningful only when the GPS is in the ground truth's frame),
-    each written atomically. Returns the summary and the paths."""
+    """Write, each atomically: ``fused.tum`` (the keyframe states; TUM, quaternion x y z w, world <- IMU, for
+    evo), ``fused_imu_rate.tum`` (every IMU sample, ``imu_rate_trajectory``), ``marginals.npz`` (``t`` (K,),
+    ``pos`` (K, 3) m, ``pos_cov`` (K, 3, 3) m^2, world frame), ``fused.rrd``, ``fused.png`` and ``summary.json``
+    (``FusedSummary``: RMSE against the ``reference`` fixes, default the fused ones; the ATE against the ground truth
+    where the sequence has one). Returns the summary and the paths."""
     from fusion.figures import plot
     from fusion.graph import with_marginals
     from fusion.pgo import SequenceResult, record
+    from learned_imu.evaluation.metrics import ate_m
     from learned_imu.io import atomic_file, output_folder, write_json_atomic
 
     output_folder(folder)
     trajectory = with_marginals(result.solution)
-    written = [trajectory.write_tum(folder / "fused.tum")]
+    dense = imu_rate_trajectory(result)
+    written = [trajectory.write_tum(folder / "fused.tum"), dense.write_tum(folder / "fused_imu_rate.tum")]
     with atomic_file(folder / "marginals.npz", "wb") as f:
         np.savez(f, t=trajectory.t, pos=trajectory.pos, pos_cov=trajectory.pos_cov)
     written.append(folder / "marginals.npz")
@@ -190,12 +269,53 @@ def write_outputs(result: Fused, folder: Path, reference: GpsFixes | None = None
     inside = (reference.t >= trajectory.t[0]) & (reference.t <= trajectory.t[-1])
     err = trajectory.position_at(reference.t[inside]) - reference.pos[inside]
     rmse = float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
-    ate = None
+    aligned = unaligned = None
     gt = result.sequence.gt
     if gt is not None:
-        keep = gt.valid & (result.sequence.t >= trajectory.t[0]) & (result.sequence.t <= trajectory.t[-1])
-        err = trajectory.position_at(result.sequence.t[keep]) - gt.pos[keep]
-        ate = float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
-    summary = FusedSummary(result.sequence.name, len(trajectory.t), len(result.gps.t), int(inside.sum()), rmse, ate)
+        sample = np.searchsorted(result.sequence.t, dense.t)
+        keep = gt.valid[sample]
+        if keep.sum() >= 3:
+            aligned = ate_m(gt.pos[sample[keep]], dense.pos[keep], align=True)  # the truth into the fused frame
+            unaligned = ate_m(gt.pos[sample[keep]], dense.pos[keep], align=False)
+    summary = FusedSummary(result.sequence.name, len(trajectory.t), len(result.gps.t), int(inside.sum()), rmse,
+                           aligned, unaligned)  # fmt: skip
     written.append(write_json_atomic(folder / "summary.json", dataclasses.asdict(summary)))
     return summary, written
+
+
+def imu_rate_trajectory(result: Fused) -> Trajectory:
+    """The fused trajectory at every IMU sample from the first keyframe to the last: each keyframe's estimated state
+    carried forward by the (corrected) IMU samples, less the keyframe's estimated bias where the graph has bias
+    states, up to the next keyframe, where the next estimated state takes over. ``pos_cov`` is None."""
+    import torch
+    from gtsam.symbol_shorthand import B
+
+    from learned_imu.geometry.preintegration import preintegrate
+
+    seq, traj, values = result.sequence, result.solution.trajectory, result.solution.values
+    index = nearest_samples(seq, traj.t)[0]
+    gravity = np.asarray(seq.gravity, dtype=float)
+    gyro, acc = result.correction.gyro.double(), result.correction.acc.double()
+    t, rot, pos, vel = [traj.t[:1]], [traj.rot[:1]], [traj.pos[:1]], [traj.vel[:1]]
+    for k in range(len(index) - 1):
+        a, b = int(index[k]), int(index[k + 1])
+        if b <= a:
+            continue
+        bias = values.atConstantBias(B(k)) if values.exists(B(k)) else None
+        g, f = gyro[a:b], acc[a:b]
+        if bias is not None:
+            g, f = g - torch.tensor(bias.gyroscope()), f - torch.tensor(bias.accelerometer())
+        deltas = preintegrate(g, f, torch.as_tensor(seq.dt[a:b]))
+        d_rot, d_vel, d_pos = (x.numpy() for x in (deltas.rot, deltas.vel, deltas.pos))
+        elapsed = deltas.dt.numpy()[:, None]
+        r0, v0, p0 = traj.rot[k], traj.vel[k], traj.pos[k]
+        n = b - a - 1  # the samples strictly between the two keyframes; the next keyframe's own state follows
+        t.append(seq.t[a + 1 : b])
+        rot.append((r0 @ d_rot)[:n])
+        vel.append((v0 + gravity * elapsed + d_vel @ r0.T)[:n])
+        pos.append((p0 + v0 * elapsed + 0.5 * gravity * elapsed**2 + d_pos @ r0.T)[:n])
+        t.append(traj.t[k + 1 : k + 2])
+        rot.append(traj.rot[k + 1 : k + 2])
+        vel.append(traj.vel[k + 1 : k + 2])
+        pos.append(traj.pos[k + 1 : k + 2])
+    return Trajectory(*(np.concatenate(x) for x in (t, rot, pos, vel)))

@@ -131,7 +131,7 @@ def _choices() -> dict[str, tuple]:
     from learned_imu.datasets.simulator import GRADES, PROFILES
 
     return {
-        "on_gap": (*_checks.ON_GAP, SPLIT), "on_duplicate": _checks.ON_DUPLICATE, "on_backward": kitti_raw.ON_BACKWARD,
+        "on_gap": (*_checks.ON_GAP, SPLIT), "on_duplicate": _checks.ON_DUPLICATE, "on_backward": _checks.ON_BACKWARD,
         "gps_frame": kitti_raw.GPS_FRAMES, "stamp": rosbag.STAMPS, "quat_order": _rotations.QUAT_ORDERS,
         "time_unit": tuple(csv.TIME_UNITS), "gyro_unit": tuple(csv.GYRO_UNITS), "acc_unit": tuple(csv.ACC_UNITS),
         "profile": PROFILES, "grade": tuple(GRADES),

@@ -37,6 +37,7 @@ DEG = np.pi / 180.0
 OnDuplicate = Literal["error", "drop"]
 OnGap = Literal["error", "keep"]  # the readers'; a config's on_gap: split reads with keep, then splits
 ON_DUPLICATE = typing.get_args(OnDuplicate)
+ON_BACKWARD = ("error", "drop")  # a time stamp before the previous one: refuse, or drop the row
 ON_GAP = typing.get_args(OnGap)
 
 # units check without ground truth (median |acc| is robust to the large accelerations of hand-held trials)
@@ -55,6 +56,29 @@ GYRO_MIN_RATE = 0.05  # rad/s rms; below this the ground truth barely rotates an
 MOTION_INTERVAL_S = 1.0  # intervals over which velocity change and displacement are compared, s
 MOTION_MIN_RMS = 0.2  # m/s (velocity change) or m (displacement) rms over the intervals; less: too still to judge
 MOTION_SCALE = (0.5, 2.0)  # fitted ground truth / prediction scale accepted (mm read as m gives 1000, negated -1)
+
+
+def forward_rows(t: np.ndarray, source, field: str, on_backward: str, line_of, cause: str = "") -> np.ndarray:
+    """Rows to keep: all (``on_backward="error"``, which raises a ``DataError`` naming the first backward step's
+    line) or those whose stamp is not before the last kept one (``"drop"``; equal stamps are left to
+    ``on_duplicate``). ``cause``: the likely reason, for the message (e.g. replayed packets)."""
+    if on_backward not in ON_BACKWARD:
+        raise ValueError(f"on_backward must be one of {ON_BACKWARD}, got {on_backward!r}")
+    back = np.flatnonzero(np.diff(t) < 0)
+    if back.size == 0:
+        return np.arange(len(t))
+    if on_backward == "error":
+        row = int(back[0]) + 1
+        raise DataError(
+            source,
+            field,
+            f"time goes backwards: {float(t[row])!r} after {float(t[row - 1])!r} ({back.size} backward step(s)"
+            + (f", {cause}" if cause else "")
+            + "); pass on_backward='drop' to drop the rows not after the last kept one",
+            line=line_of(row),
+        )
+    latest = np.maximum.accumulate(t)
+    return np.flatnonzero(t >= np.concatenate([[-np.inf], latest[:-1]]))
 
 
 def check_timestamps(

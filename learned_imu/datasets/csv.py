@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from learned_imu.datasets._assemble import GtSamples, ReadChecks, build_sequence
-from learned_imu.datasets._checks import DEG, STANDARD_GRAVITY, check_timestamps
+from learned_imu.datasets._checks import DEG, STANDARD_GRAVITY, check_timestamps, forward_rows
 from learned_imu.datasets._rotations import QUAT_ORDERS
 from learned_imu.datasets._table import ColumnKey, read_table
 from learned_imu.datasets.sequence import ImuSequence
@@ -86,6 +86,7 @@ def read_csv(
     gt_vel: Sequence[ColumnKey] | None = None,
     gravity: float = GRAVITY,
     name: str | None = None,
+    on_backward: str = "error",
     checks: ReadChecks = ReadChecks(),
 ) -> ImuSequence:
     """Read an IMU table (see the module docstring for the conventions).
@@ -99,6 +100,8 @@ def read_csv(
         gt_pos, gt_quat, quat_order, gt_vel: optional ground-truth columns (``gt_pos`` and ``gt_quat`` together).
         gravity: magnitude of gravity, m/s^2 (world z-up).
         name: sequence name (default: the file stem).
+        on_backward: ``"error"`` (a time stamp before the previous one is an error naming the line) or ``"drop"``
+            (drop the rows not after the last kept one; equal stamps are ``checks.on_duplicate``'s).
         checks: duplicates, gaps, crop, self-checks, velocity window (``_assemble.ReadChecks``); ``check_units``
             also refuses time stamps at no IMU's rate (``time_unit``).
     """
@@ -118,7 +121,10 @@ def read_csv(
     table.require_finite(t[:, None], "time")
     imu = np.concatenate([table.columns(gyro_keys, "gyro") * w_scale, table.columns(acc_keys, "acc") * a_scale], 1)
     table.require_finite(imu, "gyro/acc")
-    keep = check_timestamps(t * t_scale, path, "time", on_duplicate=checks.on_duplicate, line_of=table.line_of)
+    forward = forward_rows(t, path, "time", on_backward, table.line_of)
+    kept = check_timestamps(t[forward] * t_scale, path, "time", on_duplicate=checks.on_duplicate,
+                            line_of=lambda row: table.line_of(int(forward[row])))  # fmt: skip
+    keep = forward[kept]
     t = t[keep] * t_scale
     if checks.check_units:
         _check_time_unit(t, path, time_unit)

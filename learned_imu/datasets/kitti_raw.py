@@ -43,14 +43,13 @@ from pathlib import Path
 import numpy as np
 
 from learned_imu.datasets._assemble import GtSamples, ReadChecks, build_sequence, resolve
-from learned_imu.datasets._checks import check_timestamps
+from learned_imu.datasets._checks import ON_BACKWARD, check_timestamps, forward_rows  # noqa: F401 (ON_BACKWARD: re-exported)
 from learned_imu.datasets._table import read_table
 from learned_imu.datasets.kitti import GPS_SIGMA, read_gps
 from learned_imu.datasets.sequence import GpsFixes, ImuSequence
 from learned_imu.errors import DataError, DependencyError
 
 GRAVITY = 9.80655  # m/s^2, standard gravity (the README's specific-force check used it)
-ON_BACKWARD = ("error", "drop")
 # The OXTS rate channels lag the attitude by ~40 ms (README "Conventions" 5): over the self-check's default 0.05-s
 # intervals that alone reads as a 0.35-0.45 relative mismatch on gently turning drives; over 0.3 s it is 0.25 at most
 # on the 39 shared drives, while a misread convention still scores about 1.
@@ -93,8 +92,6 @@ def read_kitti_raw(
         gps_frame: ``"fit"`` (map the fixes into the ground truth's frame, module docstring) or ``"as_is"``.
     """
     checks.refuse(UNUSED_CHECKS, "read_kitti_raw", "its ground truth is the IMU's own rows, velocity included")
-    if on_backward not in ON_BACKWARD:
-        raise ValueError(f"on_backward must be one of {ON_BACKWARD}, got {on_backward!r}")
     if gps_frame not in GPS_FRAMES:
         raise ValueError(f"gps_frame must be one of {GPS_FRAMES}, got {gps_frame!r}")
     path = Path(path)
@@ -107,7 +104,7 @@ def read_kitti_raw(
         name, source, line_of = path.stem, path, table.line_of
     else:
         raise DataError(path, "path", "not found (expected a KITTI raw <drive>.csv or a drive folder holding oxts/)")
-    monotonic = _monotonic(rows[:, 0], source, on_backward, line_of)
+    monotonic = forward_rows(rows[:, 0], source, "t", on_backward, line_of, "KITTI's replayed OXTS packets")
     unique = check_timestamps(
         rows[monotonic, 0], source, "t", on_duplicate=checks.on_duplicate, line_of=lambda r: line_of(monotonic[r])
     )
@@ -140,25 +137,6 @@ def read_kitti_raw(
         line_of=lambda row: line_of(int(keep[row])),
         frame_interval_s=FRAME_INTERVAL_S,
     )
-
-
-def _monotonic(t: np.ndarray, source, on_backward: str, line_of) -> np.ndarray:
-    """Rows to keep: all (``"error"``, which raises at the first backward step) or those whose stamp is not
-    before the last kept one (``"drop"``; equal stamps are left to ``on_duplicate``)."""
-    back = np.flatnonzero(np.diff(t) < 0)
-    if back.size == 0:
-        return np.arange(len(t))
-    if on_backward == "error":
-        row = int(back[0]) + 1
-        raise DataError(
-            source,
-            "t",
-            f"time goes backwards: {float(t[row])!r} after {float(t[row - 1])!r} ({back.size} backward step(s), "
-            "KITTI's replayed OXTS packets); pass on_backward='drop' to drop packets not after the last kept one",
-            line=line_of(row),
-        )
-    latest = np.maximum.accumulate(t)
-    return np.flatnonzero(t >= np.concatenate([[-np.inf], latest[:-1]]))
 
 
 def _fit_gps_frame(gps: GpsFixes, gt: GtSamples, source: Path) -> GpsFixes:

@@ -67,12 +67,30 @@ class GpsFixes:
     Attributes:
         t: (M,) time of each fix, s, on the IMU clock.
         pos: (M, 3) antenna position in the world frame, m.
-        sigma: (M, 3) one-sigma position noise per axis, m (standard deviation, not variance).
+        sigma: (M, 3) one-sigma position noise per axis, m (standard deviation, not variance); given as a float
+            (every fix, every axis), (3,) (every fix), (M,) (every axis) or (M, 3).
     """
 
     t: np.ndarray
     pos: np.ndarray
     sigma: np.ndarray
+
+    def __post_init__(self):
+        t, pos = np.asarray(self.t, dtype=float), np.asarray(self.pos, dtype=float)
+        if t.ndim != 1 or pos.shape != (len(t), 3):
+            raise InputError(f"GpsFixes: t must be (M,) and pos (M, 3); got {t.shape} and {pos.shape}")
+        sigma = np.asarray(self.sigma, dtype=float)
+        if sigma.shape == (len(t),) and sigma.shape != (3,):
+            sigma = sigma[:, None]
+        try:
+            sigma = np.broadcast_to(sigma, (len(t), 3)).copy()
+        except ValueError:
+            raise InputError(
+                f"GpsFixes: sigma must be a float, (3,), (M,) or (M, 3) with M = {len(t)} fixes; got {sigma.shape}"
+            ) from None
+        object.__setattr__(self, "t", t)
+        object.__setattr__(self, "pos", pos)
+        object.__setattr__(self, "sigma", sigma)
 
     def __getitem__(self, index) -> GpsFixes:
         """The fixes at ``index`` (a slice, boolean mask or index array)."""

@@ -1,0 +1,60 @@
+"""Is a GPS track in the unit its file claims? Its accelerations against the IMU's, before anything is fused.
+
+For three fixes i, j, k (times t_i < t_j < t_k at IMU samples, T1 = t_j - t_i, T2 = t_k - t_j), Forster's
+preintegrated deltas of the IMU between them give, with p the positions, g the world gravity and R_i the
+(unknown) attitude at i:
+
+    (p_k - p_j) / T2 - (p_j - p_i) / T1 - g (T1 + T2) / 2 = R_i m,   m = dv_ij - dp_ij / T1 + dR_ij dp_jk / T2
+
+(the velocity at i eliminated). Over a stretch of a few triples the attitudes are one unknown rotation R times the
+IMU's own relative rotations, so ``track_misfit`` fits that rotation per stretch (Wahba's problem, an SVD) and
+returns the RMS of what is left, m/s. A track in the wrong unit (lat/lon in radians read as degrees: 1/57.3 of the
+motion; x/y/z in km or mm) leaves the IMU's motion, or a thousand times more than it, unexplained.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from learned_imu.datasets.sequence import GpsFixes, ImuSequence
+
+SPACING_S = 2.0  # fixes at least this far apart (GPS noise over shorter spans swamps the motion)
+STRETCH_TRIPLES = 6  # triples sharing one attitude unknown (gyro drift over ~2 x 6 x SPACING_S is small)
+
+
+def track_misfit(sequence: ImuSequence, fixes: GpsFixes) -> float | None:
+    """RMS, m/s, of the GPS track's velocity changes that the IMU cannot explain (module docstring); None when
+    the fixes inside the IMU's span make fewer than one stretch of triples."""
+    import torch
+
+    from learned_imu.geometry.preintegration import preintegrate
+
+    inside = (fixes.t >= sequence.t[0]) & (fixes.t < sequence.t[-1])
+    t, pos = fixes.t[inside], fixes.pos[inside]
+    keep = [0]
+    for i in range(1, len(t)):
+        if t[i] - t[keep[-1]] >= SPACING_S:
+            keep.append(i)
+    if len(keep) < STRETCH_TRIPLES + 2:
+        return None
+    sample = np.clip(np.searchsorted(sequence.t, t[keep]), 0, len(sequence.t) - 1)
+    deltas = preintegrate(torch.as_tensor(sequence.gyro), torch.as_tensor(sequence.acc), torch.as_tensor(sequence.dt))
+    vel = np.concatenate([np.zeros((1, 3)), deltas.vel.numpy()])
+    prefix = np.concatenate([np.zeros((1, 3)), deltas.pos.numpy()])
+    elapsed = np.concatenate([[0.0], deltas.dt.numpy()])  # index n: at sample n, in the frame of sample 0
+    a, b, c = sample[:-2], sample[1:-1], sample[2:]
+    t1, t2 = (elapsed[b] - elapsed[a])[:, None], (elapsed[c] - elapsed[b])[:, None]
+    # in the frame of sample 0: R_i m = R_0i dv_ij - R_0i dp_ij / T1 + R_0j dp_jk / T2
+    dv = vel[b] - vel[a]
+    dp_ij = prefix[b] - prefix[a] - vel[a] * t1
+    dp_jk = prefix[c] - prefix[b] - vel[b] * t2
+    u = dv - dp_ij / t1 + dp_jk / t2
+    p = pos[keep]
+    y = (p[2:] - p[1:-1]) / t2 - (p[1:-1] - p[:-2]) / t1 - 0.5 * np.asarray(sequence.gravity) * (t1 + t2)
+    residual = []
+    for start in range(0, len(u) - STRETCH_TRIPLES + 1, STRETCH_TRIPLES):
+        uu, yy = u[start : start + STRETCH_TRIPLES], y[start : start + STRETCH_TRIPLES]
+        w, _, vt = np.linalg.svd(yy.T @ uu)
+        r = w @ np.diag([1.0, 1.0, np.linalg.det(w @ vt)]) @ vt  # world <- frame of sample 0 for this stretch
+        residual.append(yy - uu @ r.T)
+    return float(np.sqrt(np.mean(np.sum(np.concatenate(residual) ** 2, axis=1))))

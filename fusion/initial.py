@@ -28,7 +28,7 @@ ALIGNED_PRIOR_SIGMAS = (0.2, 1.0, 1.0)  # rad, m, m/s: prior on an aligned (not 
 def first_state(initial_state, where: str) -> tuple[gtsam.Pose3, np.ndarray]:
     """(pose, velocity) of a ``gtsam.NavState`` given as the first state (world <- IMU pose, world velocity m/s);
     anything else is an ``InputError`` showing how to build one (the old ``(rot, pos, vel)`` tuple read in another
-    order than ``learned_imu``'s ``NavState(rot, vel, pos)``, so it is no longer taken)."""
+    order than ``learned_imu``'s keyword-only ``NavState(rot=, vel=, pos=)``, so it is no longer taken)."""
     if not isinstance(initial_state, gtsam.NavState):
         raise InputError(
             f"{where}: initial_state must be a gtsam.NavState, e.g. gtsam.NavState(gtsam.Pose3(gtsam.Rot3(rot), pos), "

@@ -58,9 +58,12 @@ class Preintegrated:
     (``learned_imu.geometry.windowed.preintegrate_windows(..., diagonal=True)``; ``cov`` is then None)."""
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class NavState:
-    """Navigation state in the world frame: ``rot`` world <- IMU (..., 3, 3), ``vel`` and ``pos`` (..., 3)."""
+    """Navigation state in the world frame: ``rot`` world <- IMU (..., 3, 3), ``vel`` and ``pos`` (..., 3).
+
+    Keyword-only (``NavState(rot=..., vel=..., pos=...)``): ``gtsam.NavState(R, p, v)`` orders position before
+    velocity, so a state built positionally the GTSAM way fails instead of swapping them."""
 
     rot: torch.Tensor
     vel: torch.Tensor

@@ -212,7 +212,8 @@ def _truth_deltas(sequence: ImuSequence, starts: np.ndarray, length: int, every:
     gt = sequence.gt
     ends = starts[..., None] + window_ends(torch.zeros(1, dtype=torch.long), length, every)[0].numpy()  # (C, M, K)
     elapsed = np.concatenate([[0.0], np.cumsum(sequence.dt)])
-    states = [NavState(*(torch.as_tensor(x[i]) for x in (gt.rot, gt.vel, gt.pos))) for i in (starts, ends)]
+    fields = ("rot", "vel", "pos")
+    states = [NavState(**{k: torch.as_tensor(getattr(gt, k)[i]) for k in fields}) for i in (starts, ends)]
     truth = truth_deltas(*states, torch.as_tensor(elapsed[ends] - elapsed[starts][..., None]), sequence.gravity)
     keep = torch.as_tensor(valid)[..., None]
     eye = torch.eye(3, dtype=torch.float64)

@@ -70,7 +70,7 @@ class Windows:
             return self
 
         def move(state: NavState) -> NavState:
-            return NavState(state.rot.to(device), state.vel.to(device), state.pos.to(device))
+            return NavState(rot=state.rot.to(device), vel=state.vel.to(device), pos=state.pos.to(device))
 
         return Windows(
             self.gyro.to(device), self.acc.to(device), self.dt.to(device), move(self.start), move(self.targets),
@@ -89,7 +89,7 @@ class Windows:
         """The same windows in float64."""
 
         def cast(state: NavState) -> NavState:
-            return NavState(state.rot.double(), state.vel.double(), state.pos.double())
+            return NavState(rot=state.rot.double(), vel=state.vel.double(), pos=state.pos.double())
 
         return Windows(
             self.gyro.double(), self.acc.double(), self.dt.double(), cast(self.start), cast(self.targets),
@@ -165,8 +165,8 @@ def make_windows(
         gyro=t(sequence.gyro[fed]),
         acc=t(sequence.acc[fed]),
         dt=t(sequence.dt[take]),
-        start=NavState(t(gt.rot[starts]), t(gt.vel[starts]), t(gt.pos[starts])),
-        targets=NavState(t(gt.rot[after]), t(gt.vel[after]), t(gt.pos[after])),
+        start=NavState(rot=t(gt.rot[starts]), vel=t(gt.vel[starts]), pos=t(gt.pos[starts])),
+        targets=NavState(rot=t(gt.rot[after]), vel=t(gt.vel[after]), pos=t(gt.pos[after])),
         gravity=t(sequence.gravity),
         at=at,
         gravity_imu=t(np.einsum("mlji,j->mli", gt.rot[fed], sequence.gravity)) if remove_gravity else None,
@@ -176,7 +176,7 @@ def make_windows(
 
 def _pick(index: torch.Tensor):
     def pick(state: NavState) -> NavState:
-        return NavState(state.rot[index], state.vel[index], state.pos[index])
+        return NavState(rot=state.rot[index], vel=state.vel[index], pos=state.pos[index])
 
     return pick
 
@@ -199,7 +199,7 @@ def concat_windows(parts: list[Windows]) -> Windows:
 
     def cat_state(name: str) -> NavState:
         states = [getattr(p, name) for p in parts]
-        return NavState(*(torch.cat([getattr(s, f) for s in states]) for f in ("rot", "vel", "pos")))
+        return NavState(**{f: torch.cat([getattr(s, f) for s in states]) for f in ("rot", "vel", "pos")})
 
     gravity_imu = None if first.gravity_imu is None else cat("gravity_imu")
     return Windows(

@@ -24,7 +24,7 @@ def test_clean_imu_integrates_exactly_onto_ground_truth(profile):
     seq = sim.sequence
     f64 = torch.float64
     pre = preintegrate(torch.tensor(sim.clean_gyro), torch.tensor(sim.clean_acc), torch.tensor(seq.dt))
-    start = NavState(*(torch.tensor(x[0], dtype=f64) for x in (seq.gt.rot, seq.gt.vel, seq.gt.pos)))
+    start = NavState(**{k: torch.tensor(getattr(seq.gt, k)[0], dtype=f64) for k in ("rot", "vel", "pos")})
     end = predict(start, pre, torch.tensor(seq.gravity))
     # predict gives the state after each sample, ground truth the state before it
     assert np.abs(end.pos[:-1].numpy() - seq.gt.pos[1:]).max() < 1e-9

@@ -305,3 +305,11 @@ def test_against_gtsams_default_tangent_preintegration_on_a_large_turn():
     assert 1e-9 < angle < 1e-5  # measured 9.7e-7 rad: not round-off, but far below any IMU's noise
     assert np.abs(pos_g[-1] - ours.pos[-1].numpy()).max() < 1e-5  # measured 2.9e-7 m
     assert np.abs(vel_g[-1] - ours.vel[-1].numpy()).max() < 1e-5  # measured 9.5e-7 m/s
+
+
+def test_nav_state_is_keyword_only_so_the_gtsam_order_cannot_swap_position_and_velocity():
+    rot, p, v = torch.eye(3, dtype=torch.float64), torch.ones(3, dtype=torch.float64), torch.zeros(3)
+    with pytest.raises(TypeError):
+        NavState(rot, p, v)  # gtsam.NavState(R, p, v)'s order, positionally
+    state = NavState(rot=rot, pos=p, vel=v)  # any keyword order
+    assert state.pos is p and state.vel is v

@@ -30,8 +30,8 @@ def windows(sim, gyro, acc, gyro_cov=None, acc_cov=None):
     pre = preintegrate(t(gyro[take]), t(acc[take]), t(seq.dt[take]), gyro_cov, acc_cov, at=at)
     after = (take + 1)[:, at]
     gt = seq.gt
-    start = NavState(t(gt.rot[starts]), t(gt.vel[starts]), t(gt.pos[starts]))
-    end = NavState(t(gt.rot[after]), t(gt.vel[after]), t(gt.pos[after]))
+    start = NavState(rot=t(gt.rot[starts]), vel=t(gt.vel[starts]), pos=t(gt.pos[starts]))
+    end = NavState(rot=t(gt.rot[after]), vel=t(gt.vel[after]), pos=t(gt.pos[after]))
     return pre, start, end, t(seq.gravity)
 
 
@@ -59,8 +59,8 @@ def test_rotation_error_is_continuous_where_the_delta_angle_crosses_pi():
     c, s_ = np.cos(true_angle), np.sin(true_angle)
     rot_gt = torch.tensor([[[[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]]]], dtype=torch.float64)
     eye = torch.eye(3, dtype=torch.float64)[None]
-    start = NavState(eye, torch.zeros(1, 3, dtype=torch.float64), torch.zeros(1, 3, dtype=torch.float64))
-    end = NavState(rot_gt, pre.vel, pre.pos)
+    start = NavState(rot=eye, vel=torch.zeros(1, 3, dtype=torch.float64), pos=torch.zeros(1, 3, dtype=torch.float64))
+    end = NavState(rot=rot_gt, vel=pre.vel, pos=pre.pos)
     theta = delta_errors(pre, start, end, torch.zeros(3, dtype=torch.float64))[0, 0, :3]
     # d theta = Jr^-1(theta) d phi; about the rotation axis itself Jr^-1 is the identity: 0.007 rad about z
     assert torch.allclose(theta, torch.tensor([0.0, 0.0, 0.007], dtype=torch.float64), atol=1e-9), theta

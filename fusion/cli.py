@@ -506,7 +506,7 @@ def scale_noise_command(
     """Scale a trained model's noise densities (one factor per sensor) to a held-out sequence's windows by maximum
     likelihood, so that its covariance is calibrated on data it has not seen
     (learned_imu.training.train.noise_residuals)."""
-    from learned_imu.network.inference import scale_checkpoint_noise
+    from learned_imu.training.noise_scaling import scale_checkpoint_noise
 
     _check_outputs(files={"--out": out})
     sequence = _read_with_options(dataset, path, reader_option or [], imu_file)

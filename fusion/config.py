@@ -8,13 +8,71 @@ read relative to its data root.
 
 from __future__ import annotations
 
+import math
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
-from fusion.graph import FusionSettings
-from fusion.pgo import PgoOptions
-from learned_imu.config import SequenceConfig, config_path, from_dict, read_yaml
+from fusion.graph import BiasStates, FusionSettings
+from learned_imu.config import SequenceConfig, check_noise_density, config_path, from_dict, read_yaml
 from learned_imu.errors import ConfigError
+
+ScoreSpan = Literal["keyframes", "gps"]
+GpsSource = Literal["auto", "simulated", "recorded"]
+Keyframes = Literal["interval", "fixes"]
+SCORE_SPANS, GPS_SOURCES, KEYFRAMES = (typing.get_args(t) for t in (ScoreSpan, GpsSource, Keyframes))
+
+
+@dataclass(frozen=True)
+class PgoOptions:
+    """Rates, noise and seeds of the ablation; fixed densities in rad/s/sqrt(Hz) and m/s^2/sqrt(Hz)."""
+
+    gps_hz: tuple[float, ...] = (1.0, 0.1)
+    gps_sigma_m: float = 0.1
+    seeds: int = 10
+    keyframe_interval_s: float = 0.1
+    fixed_gyro_noise_density: float = 0.004
+    fixed_acc_noise_density: float = 0.08
+    # where ATE is scored: "keyframes" (the whole keyframe span) or "gps" (from the first to the last fused fix:
+    # past the last fix the graph dead-reckons, and how far depends on where the fixes fall, not on the setting)
+    score_span: ScoreSpan = "keyframes"
+    # "simulated" (from the ground truth), "recorded" (the sequence's own fixes) or "auto" (simulated where there is
+    # ground truth, else recorded)
+    gps_source: GpsSource = "auto"
+    # "interval": a keyframe every keyframe_interval_s; "fixes": one at the sample of every recorded fix (within half
+    # a sample period; fixes inside a gap of the IMU are not used), so that each fused fix has its keyframe
+    keyframes: Keyframes = "interval"
+    gtsam_example: bool = False  # add the GTSAM_EXAMPLE row
+    # with bias states (fusion.graph.BiasStates: per-sample random walk and prior sigmas): each of the four settings
+    # also runs with a bias state per keyframe, as a row "<setting> + bias states"
+    bias_states: BiasStates | None = None
+    # (gyro rad/s/sqrt(Hz), acc m/s^2/sqrt(Hz)) sigmas, at least, of a sample that is held across a time gap of the
+    # IMU (longer than MAX_GAP_STEPS median steps: KITTI's dropped OXTS packets), in every setting; null: none
+    gap_noise_density: tuple[float, float] | None = None
+
+    def __post_init__(self):
+        if self.score_span not in SCORE_SPANS:
+            raise ConfigError(f"options.score_span must be one of {', '.join(SCORE_SPANS)}, got {self.score_span!r}")
+        if self.keyframes not in KEYFRAMES:
+            raise ConfigError(f"options.keyframes must be one of {', '.join(KEYFRAMES)}, got {self.keyframes!r}")
+        if not (self.gps_hz and all(math.isfinite(r) and r > 0 for r in self.gps_hz)):
+            raise ConfigError(f"options.gps_hz must be a list of positive rates (Hz), got {list(self.gps_hz)!r}")
+        for key in ("gps_sigma_m", "keyframe_interval_s"):
+            value = getattr(self, key)
+            if not (math.isfinite(value) and value > 0):
+                raise ConfigError(f"options.{key} must be a positive number, got {value!r}")
+        if self.seeds < 1:
+            raise ConfigError(f"options.seeds must be a whole number >= 1, got {self.seeds!r}")
+        check_noise_density("gyro", self.fixed_gyro_noise_density, "options.fixed_gyro_noise_density")
+        check_noise_density("acc", self.fixed_acc_noise_density, "options.fixed_acc_noise_density")
+        if self.gap_noise_density is not None:
+            check_noise_density("gyro", self.gap_noise_density[0], "options.gap_noise_density[0]")
+            check_noise_density("acc", self.gap_noise_density[1], "options.gap_noise_density[1]")
+        if self.gps_source not in GPS_SOURCES:
+            raise ConfigError(f"options.gps_source must be one of {', '.join(GPS_SOURCES)}, got {self.gps_source!r}")
+
+
 
 
 @dataclass(frozen=True)

@@ -26,8 +26,8 @@ DPI = 110
 
 
 def plot(result, path: str | Path) -> Path:
-    """A PNG of one sequence's result (``fusion.pgo.SequenceResult``), written atomically."""
-    from fusion.pgo import marginal_track
+    """A PNG of one sequence's result (``fusion.results.SequenceResult``), written atomically."""
+    from fusion.results import marginal_track
 
     seq = result.sequence
     fused = {name: marginal_track(solution) for name, (solution, _) in result.examples.items()}

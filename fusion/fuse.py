@@ -1,12 +1,13 @@
 """A user's own IMU + GPS log in, a fused trajectory out: ``fuse(sequence, gps, model=None, ...)``, behind ``airimu
 fuse``.
 
-Stage by stage, reusing the PGO ablation's parts: the model corrects the IMU and predicts its noise (or, without a
-model, the raw samples with fixed noise densities); an export holds the keyframe preintegrations, a keyframe at the
-IMU sample of every fix (fixes inside a gap of the IMU are not used) or every ``keyframe_s``; ``fusion.graph``
-builds the graph (robust GPS factors by default, optional bias states) and Levenberg-Marquardt solves it. The first
-state is found from the GPS track (``fusion.initial.aligned_first_state``), never from ground truth: a sequence's
-ground truth, if it has one, only scores the result.
+Stage by stage (independent of the PGO ablation's code; the recording and figure of ``fusion.results``): the model
+corrects the IMU and predicts its noise (or, without a model, the raw samples with fixed noise densities); an export
+holds the keyframe preintegrations, a keyframe at the IMU sample of every fix (fixes inside a gap of the IMU are not
+used) or every ``keyframe_s``; ``fusion.graph`` builds the graph (robust GPS factors by default, optional bias
+states) and Levenberg-Marquardt solves it. The first state is found from the GPS track
+(``fusion.initial.aligned_first_state``), never from ground truth: a sequence's ground truth, if it has one, only
+scores the result.
 
 GPS files (``read_gps_csv``): comma separated with a header naming the columns: time ``t`` (s, on the IMU clock),
 then either ``x, y, z`` (m, a local metric z-up frame) or ``lat, lon, alt`` (degrees, m; converted to a local
@@ -35,10 +36,9 @@ import numpy as np
 from factors import load_export
 from factors.noise import noise_mismatch
 from fusion.graph import BiasStates, FusionSettings, Solution, Trajectory, build_graph, solve
-from fusion.pgo import fixes_on_samples
 from learned_imu.datasets.sequence import GpsFixes, ImuSequence
 from learned_imu.errors import DataError, InputError
-from learned_imu.export import export_preintegration, keyframes_every, nearest_samples
+from learned_imu.export import export_preintegration, fixes_on_samples, keyframes_every, nearest_samples
 from learned_imu.network.model import Correction
 
 DEFAULT_GPS_SIGMA_M = 1.0  # per axis, when the file gives none
@@ -252,7 +252,7 @@ def write_outputs(result: Fused, folder: Path, reference: GpsFixes | None = None
     where the sequence has one). Returns the summary and the paths."""
     from fusion.figures import plot
     from fusion.graph import with_marginals
-    from fusion.pgo import SequenceResult, record
+    from fusion.results import SequenceResult, record
     from learned_imu.evaluation.metrics import ate_m
     from learned_imu.io import atomic_file, output_folder, write_json_atomic
 

@@ -27,35 +27,25 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
-import typing
-import weakref
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
 from factors import load_export
-from fusion.graph import BiasStates, FusionSettings, Solution, build_graph, solve, with_marginals
-from learned_imu.config import check_noise_density, load_config
+from fusion.config import GPS_SOURCES, PgoConfig, PgoOptions
+from fusion.graph import BiasStates, FusionSettings, Solution, build_graph, solve
+from fusion.results import SequenceResult, marginal_track, record  # noqa: F401 (re-exported)
+from learned_imu.config import load_config
 from learned_imu.datasets.sequence import GpsFixes, ImuSequence, gap_indices
 from learned_imu.errors import ConfigError, InputError
-from learned_imu.evaluation.evaluate import dead_reckoning
-from learned_imu.export import export_preintegration, keyframes_every, nearest_samples
+from learned_imu.export import export_preintegration, fixes_on_samples, keyframes_every, nearest_samples  # noqa: F401
 from learned_imu.network.checkpoint import model_from_checkpoint
 from learned_imu.network.inference import correct
 from learned_imu.network.model import Correction
 from learned_imu.training.experiment import load_sequences, train_run, with_epochs
 
-if TYPE_CHECKING:
-    from fusion.config import PgoConfig
-
 log = logging.getLogger(__name__)
-ScoreSpan = Literal["keyframes", "gps"]
-GpsSource = Literal["auto", "simulated", "recorded"]
-Keyframes = Literal["interval", "fixes"]
-SCORE_SPANS, GPS_SOURCES, KEYFRAMES = (typing.get_args(t) for t in (ScoreSpan, GpsSource, Keyframes))
 
 
 @dataclass(frozen=True)
@@ -104,63 +94,16 @@ class PgoRow:
     ate_std_m: float
 
 
-@dataclass(frozen=True)
-class PgoOptions:
-    """Rates, noise and seeds of the ablation; fixed densities in rad/s/sqrt(Hz) and m/s^2/sqrt(Hz)."""
-
-    gps_hz: tuple[float, ...] = (1.0, 0.1)
-    gps_sigma_m: float = 0.1
-    seeds: int = 10
-    keyframe_interval_s: float = 0.1
-    fixed_gyro_noise_density: float = 0.004
-    fixed_acc_noise_density: float = 0.08
-    # where ATE is scored: "keyframes" (the whole keyframe span) or "gps" (from the first to the last fused fix:
-    # past the last fix the graph dead-reckons, and how far depends on where the fixes fall, not on the setting)
-    score_span: ScoreSpan = "keyframes"
-    # "simulated" (from the ground truth), "recorded" (the sequence's own fixes) or "auto" (simulated where there is
-    # ground truth, else recorded)
-    gps_source: GpsSource = "auto"
-    # "interval": a keyframe every keyframe_interval_s; "fixes": one at the sample of every recorded fix (within half
-    # a sample period; fixes inside a gap of the IMU are not used), so that each fused fix has its keyframe
-    keyframes: Keyframes = "interval"
-    gtsam_example: bool = False  # add the GTSAM_EXAMPLE row
-    # with bias states (fusion.graph.BiasStates: per-sample random walk and prior sigmas): each of the four settings
-    # also runs with a bias state per keyframe, as a row "<setting> + bias states"
-    bias_states: BiasStates | None = None
-    # (gyro rad/s/sqrt(Hz), acc m/s^2/sqrt(Hz)) sigmas, at least, of a sample that is held across a time gap of the
-    # IMU (longer than MAX_GAP_STEPS median steps: KITTI's dropped OXTS packets), in every setting; null: none
-    gap_noise_density: tuple[float, float] | None = None
-
-    def __post_init__(self):
-        if self.score_span not in SCORE_SPANS:
-            raise ConfigError(f"options.score_span must be one of {', '.join(SCORE_SPANS)}, got {self.score_span!r}")
-        if self.keyframes not in KEYFRAMES:
-            raise ConfigError(f"options.keyframes must be one of {', '.join(KEYFRAMES)}, got {self.keyframes!r}")
-        if not (self.gps_hz and all(math.isfinite(r) and r > 0 for r in self.gps_hz)):
-            raise ConfigError(f"options.gps_hz must be a list of positive rates (Hz), got {list(self.gps_hz)!r}")
-        for key in ("gps_sigma_m", "keyframe_interval_s"):
-            value = getattr(self, key)
-            if not (math.isfinite(value) and value > 0):
-                raise ConfigError(f"options.{key} must be a positive number, got {value!r}")
-        if self.seeds < 1:
-            raise ConfigError(f"options.seeds must be a whole number >= 1, got {self.seeds!r}")
-        check_noise_density("gyro", self.fixed_gyro_noise_density, "options.fixed_gyro_noise_density")
-        check_noise_density("acc", self.fixed_acc_noise_density, "options.fixed_acc_noise_density")
-        if self.gap_noise_density is not None:
-            check_noise_density("gyro", self.gap_noise_density[0], "options.gap_noise_density[0]")
-            check_noise_density("acc", self.gap_noise_density[1], "options.gap_noise_density[1]")
-        if self.gps_source not in GPS_SOURCES:
-            raise ConfigError(f"options.gps_source must be one of {', '.join(GPS_SOURCES)}, got {self.gps_source!r}")
-
-    @property
-    def settings(self) -> tuple[PgoSetting, ...]:
-        twins = ()
-        if self.bias_states is not None:
-            twins = tuple(
-                dataclasses.replace(s, name=f"{s.name} + bias states", bias=self.bias_states, key=f"{s.file_key}_bias")
-                for s in SETTINGS
-            )
-        return SETTINGS + twins + ((GTSAM_EXAMPLE,) if self.gtsam_example else ())
+def settings_of(options: PgoOptions) -> tuple[PgoSetting, ...]:
+    """The settings ``options`` run: the four of ``SETTINGS``, their bias-state twins with ``bias_states``, and
+    ``GTSAM_EXAMPLE`` with ``gtsam_example``."""
+    twins = ()
+    if options.bias_states is not None:
+        twins = tuple(
+            dataclasses.replace(s, name=f"{s.name} + bias states", bias=options.bias_states, key=f"{s.file_key}_bias")
+            for s in SETTINGS
+        )
+    return SETTINGS + twins + ((GTSAM_EXAMPLE,) if options.gtsam_example else ())
 
 
 def write_exports(
@@ -232,19 +175,6 @@ def gps_for(
     return fixes[keep], truth
 
 
-def fixes_on_samples(sequence: ImuSequence) -> ImuSequence:
-    """``sequence`` with only the recorded fixes that fall on an IMU sample (within half a sample period); the
-    others (inside a gap of the IMU) are dropped with a warning."""
-    if sequence.gps is None:
-        raise InputError(f"{sequence.name}: no recorded GPS fixes")
-    _, on_sample = nearest_samples(sequence, sequence.gps.t)
-    if not on_sample.all():
-        log.warning("%s: %d of %d GPS fixes lie in gaps of the IMU and are not used", sequence.name,
-                    int((~on_sample).sum()), on_sample.size)  # fmt: skip
-    fixes = sequence.gps
-    return dataclasses.replace(sequence, gps=fixes[on_sample])
-
-
 def recorded_phases(sequence: ImuSequence, rate_hz: float) -> int:
     """How many recorded fixes there are per fused fix at ``rate_hz``: the number of distinct decimations."""
     if sequence.gps is None or len(sequence.gps.t) < 2:
@@ -274,10 +204,10 @@ def run_sequence(
     fusion: FusionSettings | None = None,
     settings=None,
 ) -> tuple[list[PgoRow], dict]:
-    """Every setting (default: ``options.settings``) x GPS rate x seed on one sequence; the rows, and one solution
+    """Every setting (default: ``settings_of(options)``) x GPS rate x seed on one sequence; the rows, and one solution
     per setting at the first rate and seed 0 (for recordings and plots)."""
     options, fusion = options or PgoOptions(), fusion or FusionSettings()
-    settings = settings or options.settings
+    settings = settings or settings_of(options)
     if options.keyframes == "fixes":
         sequence = fixes_on_samples(sequence)
     exports = write_exports(sequence, correction, folder, options, settings)
@@ -305,16 +235,6 @@ def run_sequence(
     return rows, examples
 
 
-@dataclass(frozen=True, eq=False)
-class SequenceResult:
-    """What one sequence produced: its rows, the model output, and one solution per setting (first rate, seed 0)."""
-
-    sequence: ImuSequence
-    correction: Correction
-    rows: list[PgoRow]
-    examples: dict
-
-
 def ablate_pgo(
     config: PgoConfig,
     out: str | Path,
@@ -340,42 +260,6 @@ def ablate_pgo(
         rows, examples = run_sequence(sequence, correction, out / "exports", config.options, config.fusion)
         results.append(SequenceResult(sequence, correction, rows, examples))
     return results
-
-
-def record(result: SequenceResult, path: str | Path) -> Path:
-    """A Rerun recording of one sequence (``fusion.recording``): ground truth, GPS, fused tracks with covariance
-    ellipsoids, errors against 3-sigma bounds, raw and AirIMU dead reckoning, IMU series, corrections, sigmas."""
-    from fusion.recording import ImuSeries, Track, write_recording
-
-    seq, c = result.sequence, result.correction
-    fused = [Track(name, *marginal_track(solution)) for name, (solution, _) in result.examples.items()]
-    times = fused[0].t
-    truth, drift = None, []
-    if seq.gt is not None:
-        truth = Track("ground truth", seq.t, seq.gt.pos)
-        drift = [
-            Track("raw IMU", times, _at_times(seq, dead_reckoning(seq, seq.gyro, seq.acc), times)),
-            Track("AirIMU", times, _at_times(seq, dead_reckoning(seq, c.gyro.numpy(), c.acc.numpy()), times)),
-        ]
-    gps = next(iter(result.examples.values()))[1]
-    imu = ImuSeries(seq.t, seq.gyro, seq.acc, c.d_gyro.numpy(), c.d_acc.numpy(), c.gyro_cov.numpy(), c.acc_cov.numpy())
-    return write_recording(path, fused, truth, drift, (gps.t, gps.pos), imu)
-
-
-def _at_times(sequence: ImuSequence, pos: np.ndarray, times: np.ndarray) -> np.ndarray:
-    """Per-sample positions (N, 3) at ``times`` (the sample at or after each time)."""
-    return pos[np.clip(np.searchsorted(sequence.t, times), 0, len(sequence) - 1)]
-
-
-def marginal_track(solution) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(t, pos, pos_cov) of a solution's keyframes, the marginals computed once per solution."""
-    if solution not in _MARGINALS:
-        trajectory = with_marginals(solution)
-        _MARGINALS[solution] = (trajectory.t, trajectory.pos, trajectory.pos_cov)
-    return _MARGINALS[solution]
-
-
-_MARGINALS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # record() and plot() share them
 
 
 def paper_ate(row: PgoRow) -> float | None:

@@ -16,6 +16,8 @@ Files are written to a temporary name and renamed, so a crash never leaves a hal
 
 from __future__ import annotations
 
+import dataclasses
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +28,8 @@ from learned_imu.errors import DataError, InputError
 from learned_imu.geometry.preintegration import preintegrate
 from learned_imu.io import atomic_file
 from learned_imu.network.model import Correction
+
+log = logging.getLogger(__name__)
 
 FORMAT_VERSION = 1
 SAMPLES_PER_CALL = 100_000  # samples preintegrated per batched call (about 0.5 GB of float64 intermediates)
@@ -164,3 +168,16 @@ def nearest_samples(sequence: ImuSequence, times: np.ndarray) -> tuple[np.ndarra
     index = np.clip(np.searchsorted(sequence.t, times), 1, len(sequence) - 1)
     index = np.where(np.abs(sequence.t[index - 1] - times) <= np.abs(sequence.t[index] - times), index - 1, index)
     return index, np.abs(sequence.t[index] - times) <= 0.5 * float(np.median(sequence.dt))
+
+
+def fixes_on_samples(sequence: ImuSequence) -> ImuSequence:
+    """``sequence`` with only the recorded fixes that fall on an IMU sample (within half a sample period); the
+    others (inside a gap of the IMU) are dropped with a warning."""
+    if sequence.gps is None:
+        raise InputError(f"{sequence.name}: no recorded GPS fixes")
+    _, on_sample = nearest_samples(sequence, sequence.gps.t)
+    if not on_sample.all():
+        log.warning("%s: %d of %d GPS fixes lie in gaps of the IMU and are not used", sequence.name,
+                    int((~on_sample).sum()), on_sample.size)  # fmt: skip
+    fixes = sequence.gps
+    return dataclasses.replace(sequence, gps=fixes[on_sample])

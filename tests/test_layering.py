@@ -71,3 +71,51 @@ def test_importing_all_of_factors_never_loads_torch():
 
 def test_importing_all_of_learned_imu_never_loads_gtsam_or_rerun():
     assert not {"gtsam", "rerun"} & _loaded_after_importing("learned_imu")
+
+
+def imported_modules(module: str, known: set[str]) -> set[str]:
+    """Our modules that ``module`` imports anywhere (module level, in functions, under TYPE_CHECKING), each
+    ``from a.b import c`` counted as a.b.c when that is a module of ours, else a.b."""
+    path = REPO / Path(*module.split("."))
+    source = (path / "__init__.py") if path.is_dir() else path.with_suffix(".py")
+    found = set()
+    for node in ast.walk(ast.parse(source.read_text(), str(source))):
+        if isinstance(node, ast.Import):
+            found |= {alias.name for alias in node.names if alias.name in known}
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module in known:
+            subs = {f"{node.module}.{alias.name}" for alias in node.names} & known
+            found |= subs or {node.module}
+    return found - {module}
+
+
+def test_no_module_imports_itself_round_a_circle():
+    """The import graph of learned_imu, factors and fusion (packages' __init__ re-exports aside) has no cycle."""
+    modules = set(ALL)
+    graph = {m: {d for d in imported_modules(m, modules) if d not in FORBIDDEN} for m in ALL if m not in FORBIDDEN}
+    state, cycles = {}, []
+
+    def visit(node, stack):
+        state[node] = "open"
+        for target in sorted(graph.get(node, ())):
+            if state.get(target) == "open":
+                cycles.append(stack[stack.index(target) :] + [target])
+            elif target not in state:
+                visit(target, [*stack, target])
+        state[node] = "done"
+
+    for module in sorted(graph):
+        if module not in state:
+            visit(module, [module])
+    assert not cycles, "import cycles: " + "; ".join(" -> ".join(c) for c in cycles)
+
+
+def test_the_user_facing_fuse_does_not_import_the_ablation():
+    """``airimu fuse`` (``fusion.fuse``) and what it imports stand without ``fusion.pgo`` (the PGO ablation)."""
+    modules = set(ALL)
+    seen, todo = set(), ["fusion.fuse"]
+    while todo:
+        module = todo.pop()
+        if module not in seen:
+            seen.add(module)
+            todo.extend(imported_modules(module, modules) - set(FORBIDDEN))
+    assert "fusion.pgo" not in seen and "learned_imu.training.experiment" not in seen, sorted(seen)

@@ -94,11 +94,20 @@ class FusionSettings:
             raise ConfigError(f"fusion.lever_arm_m must be 3 finite numbers (m), got {list(self.lever_arm_m)!r}")
 
 
+BIAS_WALKS = ("per_interval", "cumulative")
+
+
 @dataclass(frozen=True)
 class BiasStates:
-    """Bias states as GTSAM's ``IMUKittiExampleGPS.py`` models them: ``B(k) - B(k+1)`` is zero-mean with sigma
-    ``sqrt(n) * walk_sigma`` per axis (``n`` IMU samples between the keyframes, a per-sample random walk) and
-    ``B(0)`` has a zero-mean prior. Sigmas (standard deviations): acc in m/s^2, gyro in rad/s."""
+    """A bias state per keyframe: ``B(k) - B(k+1)`` is zero-mean with sigma ``sqrt(count) * walk_sigma`` per axis and
+    ``B(0)`` has a zero-mean prior. Sigmas (standard deviations): acc in m/s^2, gyro in rad/s; ``walk_sigma`` is per
+    IMU sample.
+
+    ``walk``: what ``count`` is. ``"per_interval"`` (default): the samples between the two keyframes, which is a
+    per-sample random walk (its standard deviation over n samples is ``sqrt(n) * walk_sigma``). ``"cumulative"``:
+    the samples from the first keyframe to keyframe k+1, GTSAM's ``IMUKittiExampleGPS.py`` rule (its
+    ``included_imu_measurement_count`` is never reset), a walk that loosens with the time since the start (about 20x
+    at the end of its 470-s drive); use it to run that example's settings exactly (``fusion.pgo.GTSAM_EXAMPLE``)."""
 
     acc_walk_sigma: float
     gyro_walk_sigma: float
@@ -108,15 +117,27 @@ class BiasStates:
     # graph); "combined": gtsam.CombinedImuFactor, whose preintegration carries the same random walk (as a
     # continuous-time density, walk_sigma^2 / dt) and the learned per-sample noise (factors.learned_combined_pim)
     factor: str = "between"
+    walk: str = "per_interval"
 
     def __post_init__(self):
         if self.factor not in ("between", "combined"):
             raise ConfigError(f"BiasStates.factor must be 'between' or 'combined', got {self.factor!r}")
-        for name, value in vars(self).items():
-            if name == "factor":
-                continue
+        if self.walk not in BIAS_WALKS:
+            raise ConfigError(f"BiasStates.walk must be one of {', '.join(BIAS_WALKS)}, got {self.walk!r}")
+        if self.factor == "combined" and self.walk != "per_interval":
+            raise ConfigError(
+                "BiasStates.walk: 'cumulative' needs factor 'between' (a CombinedImuFactor's preintegration carries "
+                "the walk over its own interval only)"
+            )
+        for name in ("acc_walk_sigma", "gyro_walk_sigma", "acc_prior_sigma", "gyro_prior_sigma"):
+            value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ConfigError(f"BiasStates.{name} must be a positive number, got {value!r}")
+
+    def walk_sigmas(self, samples: np.ndarray) -> np.ndarray:
+        """(K, 6) sigmas [acc x3, gyro x3] of the walk over K intervals of ``samples`` (K,) IMU samples each."""
+        count = np.cumsum(samples) if self.walk == "cumulative" else np.asarray(samples)
+        return np.sqrt(count)[:, None] * np.array([self.acc_walk_sigma] * 3 + [self.gyro_walk_sigma] * 3)
 
 
 @dataclass(frozen=True, eq=False)
@@ -289,8 +310,7 @@ def _with_bias_states(values: gtsam.Values, export: Export, bias: BiasStates, ba
         imu_factors = from_export(export, X, V, B, backend)[0]
     for factor in [*imu_factors, *others]:
         graph.add(factor)
-    for k, n in enumerate(samples if bias.factor == "between" else ()):
-        walk = np.sqrt(n) * np.array([bias.acc_walk_sigma] * 3 + [bias.gyro_walk_sigma] * 3)
+    for k, walk in enumerate(bias.walk_sigmas(samples) if bias.factor == "between" else ()):
         graph.add(gtsam.BetweenFactorConstantBias(B(k), B(k + 1), zero, gtsam.noiseModel.Diagonal.Sigmas(walk)))
     prior = np.array([bias.acc_prior_sigma] * 3 + [bias.gyro_prior_sigma] * 3)
     graph.add(gtsam.PriorFactorConstantBias(B(0), zero, gtsam.noiseModel.Diagonal.Sigmas(prior)))

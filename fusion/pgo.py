@@ -76,10 +76,10 @@ SETTINGS = (
 )
 # GTSAM's IMUKittiExampleGPS.py, from KittiEquivBiasedImu_metadata.txt: GyroscopeSigma 1.75e-4, AccelerometerSigma
 # 0.01 (continuous-time sigmas), AccelerometerBiasSigma 1.67e-4 and GyroscopeBiasSigma 2.91e-6 per sample (the
-# example scales them by sqrt(samples) per interval), bias prior sigmas 0.1 (acc) and 5e-5 (gyro)
+# example scales them by sqrt(samples since its first keyframe): walk="cumulative"), bias prior sigmas 0.1 and 5e-5
 GTSAM_EXAMPLE = PgoSetting(
-    "GTSAM example (raw IMU + bias states)", "raw", "fixed", (1.75e-4, 0.01), BiasStates(1.67e-4, 2.91e-6, 0.1, 5e-5),
-    key="raw_gtsam_example",
+    "GTSAM example (raw IMU + bias states)", "raw", "fixed", (1.75e-4, 0.01),
+    BiasStates(1.67e-4, 2.91e-6, 0.1, 5e-5, walk="cumulative"), key="raw_gtsam_example",
 )  # fmt: skip
 
 

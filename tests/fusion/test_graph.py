@@ -164,6 +164,32 @@ def test_bias_states_match_a_graph_of_gtsams_own_preintegration(tmp_path):
     np.testing.assert_allclose(solved.trajectory.pos, ours.trajectory.pos, atol=0.05)  # two models of one walk
 
 
+def test_bias_walk_per_interval_or_cumulative_as_gtsams_kitti_example(setup):
+    """The walk's sigma between B(k) and B(k+1): sqrt(samples of the interval) times the per-sample sigma, or with
+    ``walk="cumulative"`` sqrt(samples since the first keyframe) times it (IMUKittiExampleGPS.py's count, the rule
+    of the PGO ablation's GTSAM row); a cumulative walk needs BetweenFactors."""
+    from fusion.graph import BiasStates
+    from fusion.pgo import GTSAM_EXAMPLE
+    from learned_imu.errors import ConfigError
+
+    seq, export = setup
+    fuse, _ = gps_for(seq, 1.0, 0.5, seed=0)
+    samples = np.diff(export.keyframe_index)
+    per_sample = np.array([1e-4] * 3 + [1e-5] * 3)
+    for walk, count in (("per_interval", samples), ("cumulative", np.cumsum(samples))):
+        bias = BiasStates(1e-4, 1e-5, 1.0, 0.1, walk=walk)
+        graph, _ = build_graph(export, fuse, FusionSettings(), bias=bias)
+        sigmas = [graph.at(i).noiseModel().sigmas() for i in range(graph.size())
+                  if isinstance(graph.at(i), gtsam.BetweenFactorConstantBias)]  # fmt: skip
+        np.testing.assert_allclose(np.array(sigmas), np.sqrt(count)[:, None] * per_sample, rtol=1e-12)
+    assert np.sqrt(np.cumsum(samples)[-1] / samples[-1]) > 10  # the two differ: 200 keyframes, 14x at the end
+    assert GTSAM_EXAMPLE.bias.walk == "cumulative"
+    with pytest.raises(ConfigError, match="BiasStates.walk must be one of per_interval, cumulative"):
+        BiasStates(1e-4, 1e-5, 1.0, 0.1, walk="per_sample")
+    with pytest.raises(ConfigError, match="'cumulative' needs factor 'between'"):
+        BiasStates(1e-4, 1e-5, 1.0, 0.1, factor="combined", walk="cumulative")
+
+
 def test_the_first_state_is_a_gtsam_navstate():
     """A (rot, pos, vel) tuple read in another order than learned_imu's NavState(rot, vel, pos): refused, with the
     recipe; a NavState with NaN too."""

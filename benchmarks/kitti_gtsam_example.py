@@ -1,135 +1,219 @@
-"""GTSAM's ``IMUKittiExampleGPS.py`` as shipped (its IMU and GPS files, its ISAM2 loop, keyframes at every 1 Hz fix,
-every ``gps_skip``-th fix fused; phases whose ISAM2 update fails are reported as failed), scored as
-``configs/pgo_kitti.yaml`` scores its rows: ATE (RMSE, no alignment) against the OXTS ground truth of
-``kitti_raw/2011_10_03_drive_0027.csv`` at every raw sample between the first and the last fused fix. The reference
-for the GTSAM row of ``airimu ablate-pgo --config configs/pgo_kitti.yaml``, which keeps the example's noise, bias
-model and GPS noise but shares the other rows' graph, samples and solver.
+"""GTSAM's ``IMUKittiExampleGPS.py`` as shipped against the learned model, in the script's own loop
+(``examples/kitti_gps_learned.py``, which equals the script to 1e-10 m without a model), on the drive it ships
+(KITTI raw 2011_10_03_drive_0027) with one fix in ten fused (the script's ``gps_skip = 10``) and with every 1 Hz fix.
 
-    python benchmarks/kitti_gtsam_example.py [--data ../shared/data] [--gps-skip 10] [--factorization QR]
+    python benchmarks/kitti_gtsam_example.py --checkpoint runs/kitti/best.pt [--data ../shared/data] [--json out.json]
 
-The loop is the example's (first fix 1, identity first rotation with no rotation prior, zero first velocity with
-sigma 1000 m/s, 2 * gps_skip fixes before the first ISAM2 update, each interval re-preintegrated at the latest bias
-estimate); GTSAM 4.3.0 stops with an indeterminant system under its CHOLESKY setting, so QR is the default here.
-The solution lives in the GPS file's frame; it is mapped into the ground truth's ENU frame by the per-axis scale and
-offset that ``read_kitti_raw(gps_file=...)`` fits. Every phase of the fused fixes (0 .. gps_skip - 1) is run.
+Rows: GTSAM's installed script itself (its source, QR: with its CHOLESKY it stops at its first update, x21); the
+mirror on the raw IMU; the mirror with the model (corrected samples, learned noise); and the variants of
+``VARIANTS`` that take the model apart (learned noise only, the correction without its mean, bias states that take
+the constant, the learned noise calibrated over the GPS interval on the validation drives). At 1 Hz the script's
+first update after 2 keyframes diverges, so every 1 Hz row waits 20 keyframes, as at one fix in ten.
+
+Scores: RMSE (m) of the keyframe positions against every GPS fix from fix 1 on (fused or not, the script's own
+comparison), and ATE (m, RMSE, no alignment) against the OXTS ground truth of ``kitti_raw/2011_10_03_drive_0027.csv``
+at every raw sample between the first and the last fused fix, the keyframe trajectory interpolated (cubic Hermite
+on positions and velocities) and mapped from the GPS file's frame into the ground truth's ENU frame by the per-axis
+scale and offset that ``read_kitti_raw(gps_file=...)`` fits. Also printed: what the model does on this drive (the
+mean of its correction, here and on the training drives) and how calibrated its covariance is over 1 s and 10 s
+(NSE on this drive and on the validation drives, and the validation drives' maximum-likelihood noise scales).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import importlib.util
+import json
+import sys
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
-import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import B, V, X
 
 from fusion.graph import Trajectory
 from learned_imu.datasets import read_sequence
 
 DRIVE = "kitti_raw/2011_10_03_drive_0027.csv"
 REPAIR = {"on_backward": "drop", "on_duplicate": "drop", "on_gap": "keep"}
+RATES = ((10, None), (1, 20))  # (gps_skip, keyframes before the first ISAM2 update; None: the script's 2 * gps_skip)
+HORIZONS = {10: 1000, 1: 100}  # gps_skip -> samples of the windows whose calibration matters (the GPS interval)
+LOOSE_GYRO_PRIOR = 1e-3  # rad/s: a first-bias prior that lets the bias states take a constant of the correction
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "kitti_gps_learned.py"
 
 
-def load(data: Path):
-    meta = np.loadtxt(data / "kitti_gtsam" / "KittiEquivBiasedImu_metadata.txt", skiprows=1)
-    imu = np.loadtxt(data / "kitti_gtsam" / "KittiEquivBiasedImu.txt", skiprows=1)
-    gps = np.loadtxt(data / "kitti_gtsam" / "KittiGps_converted.txt", delimiter=",", skiprows=1)
-    return meta, imu, gps
+def load_example():
+    spec = importlib.util.spec_from_file_location("kitti_gps_learned", EXAMPLE)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
 
 
-def run_example(meta, imu, gps, gps_skip: int, phase: int, factorization: str) -> Trajectory:
-    """The example's main loop with the fused fixes ``i % gps_skip == phase``; the final ISAM2 estimate."""
-    acc_sigma, gyro_sigma, integration_sigma, acc_bias_sigma, gyro_bias_sigma = meta[6:11]
-    params = gtsam.PreintegrationParams.MakeSharedU(9.8)
-    params.setAccelerometerCovariance(np.eye(3) * acc_sigma**2)
-    params.setGyroscopeCovariance(np.eye(3) * gyro_sigma**2)
-    params.setIntegrationCovariance(np.eye(3) * integration_sigma**2)
-    isam_params = gtsam.ISAM2Params()
-    isam_params.setFactorization(factorization)
-    isam_params.relinearizeSkip = 10
-    isam = gtsam.ISAM2(isam_params)
-    factors, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-    gps_noise = gtsam.noiseModel.Diagonal.Precisions(np.array([0.0] * 3 + [1.0 / 0.07] * 3))
-    first = 1
-    pose, vel, bias = gtsam.Pose3(gtsam.Rot3(), gps[first, 1:]), np.zeros(3), gtsam.imuBias.ConstantBias()
-    j = 0
-    for i in range(first, len(gps)):
-        t = gps[i, 0]
-        if i == first:
-            values.insert(X(i), pose)
-            values.insert(V(i), vel)
-            values.insert(B(i), bias)
-            factors.addPriorPose3(X(i), pose, gtsam.noiseModel.Diagonal.Precisions(np.array([0, 0, 0, 1, 1, 1.0])))
-            factors.addPriorVector(V(i), vel, gtsam.noiseModel.Diagonal.Sigmas(np.ones(3) * 1000.0))
-            factors.addPriorConstantBias(B(i), bias, gtsam.noiseModel.Diagonal.Sigmas(np.array([0.1] * 3 + [5e-5] * 3)))
-            continue
-        pim = gtsam.PreintegratedImuMeasurements(params, bias)
-        count = 0
-        while j < len(imu) and imu[j, 0] <= t:
-            if imu[j, 0] >= gps[i - 1, 0]:
-                pim.integrateMeasurement(imu[j, 2:5], imu[j, 5:8], imu[j, 1])
-                count += 1
-            j += 1
-        factors.push_back(gtsam.ImuFactor(X(i - 1), V(i - 1), X(i), V(i), B(i - 1), pim))
-        walk = np.sqrt(count) * np.array([acc_bias_sigma] * 3 + [gyro_bias_sigma] * 3)
-        factors.push_back(gtsam.BetweenFactorConstantBias(
-            B(i - 1), B(i), gtsam.imuBias.ConstantBias(), gtsam.noiseModel.Diagonal.Sigmas(walk)))  # fmt: skip
-        if i % gps_skip == phase:
-            fix = gtsam.Pose3(pose.rotation(), gps[i, 1:])
-            factors.addPriorPose3(X(i), fix, gps_noise)
-            values.insert(X(i), fix)
-        else:
-            values.insert(X(i), pose)
-        values.insert(V(i), vel)
-        values.insert(B(i), bias)
-        if i > first + 2 * gps_skip:
-            isam.update(factors, values)
-            factors.resize(0)
-            values.clear()
-            result = isam.calculateEstimate()
-            pose, vel, bias = result.atPose3(X(i)), result.atVector(V(i)), result.atConstantBias(B(i))
-    result = isam.calculateEstimate()
-    keys = range(first, len(gps))
-    return Trajectory(
-        t=gps[first:, 0],
-        rot=np.array([result.atPose3(X(k)).rotation().matrix() for k in keys]),
-        pos=np.array([result.atPose3(X(k)).translation() for k in keys]),
-        vel=np.array([result.atVector(V(k)) for k in keys]),
-    )
+class GroundTruth:
+    """The OXTS ground truth of the drive and the map from the GPS file's frame into its ENU frame."""
+
+    def __init__(self, data: Path):
+        self.truth = read_sequence("kitti_raw", data / DRIVE, **REPAIR)
+        gps_file = "../kitti_gtsam/KittiGps_converted.txt"
+        as_is = read_sequence("kitti_raw", data / DRIVE, **REPAIR, gps_file=gps_file, gps_frame="as_is").gps
+        fitted = read_sequence("kitti_raw", data / DRIVE, **REPAIR, gps_file=gps_file).gps
+        self.scale = np.array([np.polyfit(as_is.pos[:, a], fitted.pos[:, a], 1) for a in range(3)])  # (3, 2)
+
+    def ate_m(self, run) -> float:
+        """ATE of a ``KittiRun`` (module docstring)."""
+        traj = Trajectory(run.t, run.rot, run.pos * self.scale[:, 0] + self.scale[:, 1], run.vel * self.scale[:, 0])
+        fused = run.t[run.fused]
+        inside = (self.truth.t >= fused[0]) & (self.truth.t <= fused[-1])
+        err = traj.position_at(self.truth.t[inside]) - self.truth.gt.pos[inside]
+        return float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
+
+
+@dataclass(frozen=True)
+class Inputs:
+    """What the variants are made of, per sample of GTSAM's IMU file: the raw samples with the script's noise, the
+    model's samples and noise, the model's mean correction on the training drives ((6,) gyro rad/s, acc m/s^2) and
+    the validation drives' maximum-likelihood (gyro, acc) noise scales per gps_skip (variance factors)."""
+
+    raw: object
+    model: object
+    train_mean: np.ndarray
+    val_scales: dict
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One row: its samples at a given gps_skip, and the mirror's other arguments."""
+
+    name: str
+    samples: Callable[[Inputs, int], object]
+    bias_prior_sigmas: tuple[float, ...] | None = None
+
+
+def _with(example, base, gyro=None, acc=None, gyro_cov=None, acc_cov=None):
+    pick = lambda new, old: old if new is None else new  # noqa: E731
+    return example.Samples(pick(gyro, base.gyro), pick(acc, base.acc), pick(gyro_cov, base.gyro_cov),
+                           pick(acc_cov, base.acc_cov))  # fmt: skip
+
+
+def variants(example) -> list[Variant]:
+    """The rows after the script's: the mirror raw, the model, and what takes the model apart."""
+    ex = example
+
+    def minus_mean(i: Inputs, mean: np.ndarray):
+        return _with(ex, i.model, i.model.gyro - mean[:3], i.model.acc - mean[3:])
+
+    def drive_mean(i: Inputs) -> np.ndarray:
+        return np.concatenate([(i.model.gyro - i.raw.gyro).mean(0), (i.model.acc - i.raw.acc).mean(0)])
+
+    def scaled(base, i: Inputs, skip: int):
+        gyro_scale, acc_scale = i.val_scales[skip]
+        return _with(ex, base, gyro_cov=i.model.gyro_cov * gyro_scale, acc_cov=i.model.acc_cov * acc_scale)
+
+    loose = (ex.BIAS_PRIOR_SIGMAS[0],) * 3 + (LOOSE_GYRO_PRIOR,) * 3
+    return [
+        Variant("mirror, raw IMU (the script's settings)", lambda i, s: i.raw),
+        Variant("mirror + KITTI model (corrections, learned noise)", lambda i, s: i.model),
+        Variant(
+            "model's corrections, the script's noise",
+            lambda i, s: _with(ex, i.model, gyro_cov=i.raw.gyro_cov, acc_cov=i.raw.acc_cov),
+        ),
+        Variant("raw IMU + learned noise", lambda i, s: _with(ex, i.model, i.raw.gyro, i.raw.acc)),
+        Variant("model, correction minus its mean on this drive", lambda i, s: minus_mean(i, drive_mean(i))),
+        Variant("model, correction minus the training drives' mean", lambda i, s: minus_mean(i, i.train_mean)),
+        Variant(
+            f"model, gyro bias prior {LOOSE_GYRO_PRIOR:g} rad/s (bias states take the constant)",
+            lambda i, s: i.model,
+            loose,
+        ),
+        Variant("model, learned noise x validation scales at the GPS interval", lambda i, s: scaled(i.model, i, s)),
+        Variant("raw IMU + learned noise x validation scales at the GPS interval", lambda i, s: scaled(i.raw, i, s)),
+        Variant(
+            "raw IMU + learned gyro noise x validation scale, the script's acc noise (chosen on this drive)",
+            lambda i, s: _with(ex, scaled(i.raw, i, s), acc_cov=i.raw.acc_cov),
+        ),
+    ]
+
+
+def model_inputs(example, checkpoint: str, config_path: str, data: Path, seq, raw) -> tuple[Inputs, dict]:
+    """The model's samples on GTSAM's file, its mean correction on the training drives, its calibration (NSE over
+    1 s and 10 s on this drive and the validation drives) and the validation drives' ML noise scales."""
+    from learned_imu.config import load_config
+    from learned_imu.network.checkpoint import model_from_checkpoint
+    from learned_imu.network.inference import correct
+    from learned_imu.training.experiment import build_windows, load_sequences
+    from learned_imu.training.train import noise_residuals
+
+    model, _ = model_from_checkpoint(checkpoint)
+    config = load_config(config_path, data_root=data)
+    out = correct(model, seq)
+    samples = example.Samples(*(np.asarray(x.numpy(), dtype=float) for x in (out.gyro, out.acc, out.gyro_cov,
+                                                                                 out.acc_cov)))  # fmt: skip
+    sums, count = np.zeros(6), 0
+    for train in load_sequences(config.data.train, config.data.root):
+        c = correct(model, train)
+        sums += np.concatenate([c.d_gyro.numpy().sum(0), c.d_acc.numpy().sum(0)])
+        count += len(train)
+    val = load_sequences(config.data.val, config.data.root)
+    drive = read_sequence("kitti_raw", data / DRIVE, **REPAIR)
+    report = {"correction_mean_this_drive": np.concatenate([out.d_gyro.numpy().mean(0), out.d_acc.numpy().mean(0)]),
+              "correction_mean_training_drives": sums / count}  # fmt: skip
+    scales = {}
+    for skip, length in HORIZONS.items():
+        windows = dataclasses.replace(config, train=dataclasses.replace(config.train, window=length, every=length))
+        on_val = noise_residuals(model, build_windows(val, windows, length))
+        scales[skip] = on_val.best_scales()
+        report[f"nse_{length / 100:g}s_val"] = on_val.nse()
+        report[f"nse_{length / 100:g}s_this_drive"] = noise_residuals(
+            model, build_windows([drive], windows, length)
+        ).nse()
+        report[f"val_scales_{length / 100:g}s"] = np.array(scales[skip])
+    return Inputs(raw, samples, sums / count, scales), report
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", default=str(Path(__file__).resolve().parents[2] / "shared" / "data"))
-    parser.add_argument("--gps-skip", type=int, default=10)
-    parser.add_argument("--factorization", default="QR", choices=("QR", "CHOLESKY"))
+    parser.add_argument("--checkpoint", default="runs/kitti/best.pt", help="the KITTI model (configs/kitti.yaml)")
+    parser.add_argument("--config", default="configs/kitti.yaml", help="its experiment (training, validation drives)")
+    parser.add_argument("--json", default=None, help="write the rows to this JSON file")
     args = parser.parse_args()
     data = Path(args.data)
-    meta, imu, gps = load(data)
-    truth = read_sequence("kitti_raw", data / DRIVE, **REPAIR)
-    as_is = read_sequence("kitti_raw", data / DRIVE, **REPAIR, gps_file="../kitti_gtsam/KittiGps_converted.txt",
-                          gps_frame="as_is").gps  # fmt: skip
-    fitted = read_sequence("kitti_raw", data / DRIVE, **REPAIR, gps_file="../kitti_gtsam/KittiGps_converted.txt").gps
-    scale = np.array([np.polyfit(as_is.pos[:, a], fitted.pos[:, a], 1) for a in range(3)])  # file -> ENU per axis
-    ates = []
-    for phase in range(args.gps_skip):
-        start = time.perf_counter()
+    example, truth = load_example(), GroundTruth(data)
+    files = data / "kitti_gtsam"
+    rows = []
+
+    def add(name: str, skip: int, run) -> None:
+        rows.append({"row": name, "gps_skip": skip, "rmse_to_gps_m": run.rmse_to_gps_m, "ate_m": truth.ate_m(run)})
+        print(f"{name} [gps_skip {skip}]: RMSE {rows[-1]['rmse_to_gps_m']:.3f} m, ATE {rows[-1]['ate_m']:.3f} m",
+              flush=True)  # fmt: skip
+
+    for skip, factorization in ((10, "CHOLESKY"), (1, "QR")):  # as shipped: the two that stop
         try:
-            traj = run_example(meta, imu, gps, args.gps_skip, phase, args.factorization)
-        except RuntimeError as error:  # gtsam's IndeterminantLinearSystemException
-            print(f"phase {phase}: failed: {str(error).strip().splitlines()[0]} {str(error).strip().splitlines()[1]}")
-            continue
-        pos = traj.pos * scale[:, 0] + scale[:, 1]
-        traj = Trajectory(traj.t, traj.rot, pos, traj.vel * scale[:, 0])
-        fused = gps[1:, 0][(np.arange(1, len(gps)) % args.gps_skip) == phase]
-        inside = (truth.t >= max(fused[0], traj.t[0])) & (truth.t <= min(fused[-1], traj.t[-1]))
-        err = traj.position_at(truth.t[inside]) - truth.gt.pos[inside]
-        ates.append(float(np.sqrt(np.mean(np.sum(err**2, axis=1)))))
-        print(f"phase {phase}: ATE {ates[-1]:.3f} m ({time.perf_counter() - start:.1f} s)", flush=True)
-    rate = 1.0 / args.gps_skip
-    print(f"GTSAM IMUKittiExampleGPS as shipped ({args.factorization}), {rate:g} Hz: ATE {np.mean(ates):.3f} +- "
-          f"{np.std(ates):.3f} m over the {len(ates)} of {args.gps_skip} phases that solved")  # fmt: skip
+            solved = example.gtsam_script(files, skip, factorization)
+        except RuntimeError as error:
+            print(f"GTSAM's script, {factorization}, gps_skip {skip}: {' '.join(str(error).split()[:12])}")
+        else:
+            print(f"GTSAM's script, {factorization}, gps_skip {skip}: solved, RMSE {solved.rmse_to_gps_m:.3f} m")
+    for skip, wait in RATES:
+        add("GTSAM's IMUKittiExampleGPS.py, QR", skip, example.gtsam_script(files, skip, "QR", wait))
+    seq = read_sequence("kitti", files)
+    raw = example.raw_samples(seq, example.read_calibration(files / example.METADATA_FILE))
+    inputs, report = model_inputs(example, args.checkpoint, args.config, data, seq, raw)
+    for key, value in report.items():
+        print(f"{key}: {np.array2string(np.asarray(value), precision=5)}")
+    for variant in variants(example):
+        for skip, wait in RATES:
+            start = time.perf_counter()
+            kwargs = {"bias_prior_sigmas": variant.bias_prior_sigmas} if variant.bias_prior_sigmas else {}
+            run = example.run(files, gps_skip=skip, wait=wait, samples=variant.samples(inputs, skip), **kwargs)
+            add(variant.name, skip, run)
+            rows[-1]["seconds"] = time.perf_counter() - start
+    if args.json:
+        extra = {k: np.asarray(v).tolist() for k, v in report.items()}
+        Path(args.json).write_text(json.dumps({"rows": rows, "model": extra}, indent=1))
 
 
 if __name__ == "__main__":

@@ -13,7 +13,8 @@ setting (acc 0.08 m/s^2/sqrt(Hz), gyro 0.004 rad/s/sqrt(Hz)), as in the paper.
 
 ``options.gtsam_example`` adds a fifth row, ``GTSAM_EXAMPLE``: the settings of GTSAM's ``IMUKittiExampleGPS.py``
 on the raw IMU (its noise densities from ``KittiEquivBiasedImu_metadata.txt``, integration noise 0, a bias state
-per keyframe with its per-sample random walk and bias prior), in the same graph, keyframes, GPS fixes and noise,
+per keyframe with its bias prior and its random walk counted as the example counts it, ``walk="cumulative"``), in
+the same graph, keyframes, GPS fixes and noise,
 first-state prior and Levenberg-Marquardt solver as the other rows (the example runs ISAM2 with a keyframe at every
 1 Hz fix; ``benchmarks/kitti_gtsam_example.py`` runs it as shipped).
 

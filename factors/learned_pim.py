@@ -20,8 +20,12 @@ preintegration at the solver's current bias, as ``IMUKittiExampleGPS.py`` does; 
 
 from __future__ import annotations
 
+import logging
+
 import gtsam
 import numpy as np
+
+from factors.noise import noise_mismatch
 
 # an IMU on Earth measures about g of specific force; a median below this over an interval (not a brief free fall)
 # means the samples are not m/s^2 of specific force (swapped with the gyro, or in g)
@@ -29,6 +33,9 @@ MIN_MEDIAN_SPECIFIC_FORCE = 3.0  # m/s^2
 MIN_SAMPLES_FOR_GRAVITY_CHECK = 10
 # a constant noise above this (sigma 1 rad/s/sqrt(Hz), 10 m/s^2/sqrt(Hz)) is no IMU's: another unit, or sigma^4
 MAX_COV = {"gyro_cov": 1.0, "acc_cov": 100.0}
+# a median sample period above this is no IMU's (seconds given in another unit, or a total duration as dt)
+MAX_MEDIAN_DT_S = 1.0
+log = logging.getLogger(__name__)
 
 
 def learned_pim(
@@ -128,13 +135,25 @@ def _checked(gyro, acc, dt, gyro_cov, acc_cov):
     dt = np.broadcast_to(np.asarray(dt, dtype=float), (n,))
     if not np.all(np.isfinite(dt)) or np.any(dt <= 0):
         raise ValueError("learned_pim: dt must be positive and finite for every sample")
+    if float(np.median(dt)) > MAX_MEDIAN_DT_S:
+        raise ValueError(
+            f"learned_pim: the median dt is {float(np.median(dt)):.3g} s, slower than any IMU (1 Hz): dt is each "
+            "sample's own step, t[i+1] - t[i], in seconds"
+        )
     force = float(np.median(np.linalg.norm(acc, axis=1)))
     if n >= MIN_SAMPLES_FOR_GRAVITY_CHECK and force < MIN_MEDIAN_SPECIFIC_FORCE:
         raise ValueError(
             f"learned_pim: the median |acc| is {force:.3g} m/s^2, far from gravity (~9.8) for a specific force: "
             "are gyro and acc swapped, or is acc in g? (arguments: gyro rad/s first, then acc m/s^2)"
         )
-    return gyro, acc, dt, _densities("gyro_cov", gyro_cov, n), _densities("acc_cov", acc_cov, n)
+    covs = _densities("gyro_cov", gyro_cov, n), _densities("acc_cov", acc_cov, n)
+    for sensor, given, cov, samples in (("gyro", gyro_cov, covs[0], gyro), ("acc", acc_cov, covs[1], acc)):
+        if np.ndim(given) <= 1:  # a constant someone typed (a model's per-sample noise rightly differs from it)
+            sigma = float(np.sqrt(cov.max()))
+            message = noise_mismatch(sensor, sigma, samples, dt)
+            if message:
+                log.warning("learned_pim: %s_cov %.3g (sigma %.3g): %s", sensor, sigma**2, sigma, message)
+    return gyro, acc, dt, *covs
 
 
 def _samples(name: str, value) -> np.ndarray:
@@ -151,8 +170,11 @@ def _densities(name: str, value, n: int) -> np.ndarray:
         out = np.broadcast_to(np.asarray(value, dtype=float), (n, 3))
     except ValueError:
         raise ValueError(f"learned_pim: {name} must be a float, (3,) or (N, 3); got {np.shape(value)}") from None
-    if not np.all(np.isfinite(out)) or np.any(out < 0):
-        raise ValueError(f"learned_pim: {name} must be finite and non-negative (a noise density, sigma^2)")
+    if not np.all(np.isfinite(out)) or np.any(out <= 0):
+        raise ValueError(
+            f"learned_pim: {name} must be finite and positive (a noise density, sigma^2): zero would make GTSAM's "
+            "noise model a sigma-0 constraint"
+        )
     limit = MAX_COV[name]
     # only a constant (float or (3,)) is a value someone typed; a per-sample array is a model's output, which may
     # rightly be huge where it distrusts a sample (the KITTI model gives 596 m^2/s^3 inside GTSAM's gap rows)

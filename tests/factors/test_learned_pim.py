@@ -77,10 +77,11 @@ def test_a_cov_beyond_any_imu_is_refused():
     assert learned_pim(gyro, acc, DT, gyro_density, distrusted, 9.81).preintMeasCov()[6, 6] > 1.0
 
 
-def test_negative_density_raises():
+def test_negative_or_zero_density_raises():
     gyro, acc, gyro_density, acc_density = samples(10, max_rate=0.5, seed=3)
-    with pytest.raises(ValueError, match="non-negative"):
-        learned_pim(gyro, acc, DT, -gyro_density, acc_density, 9.81)
+    for bad in (-gyro_density, 0.0 * gyro_density, 0.0):  # zero: GTSAM would make it a sigma-0 constraint
+        with pytest.raises(ValueError, match="finite and positive"):
+            learned_pim(gyro, acc, DT, bad, acc_density, 9.81)
 
 
 def gtsam_own(pim, gyro, acc, dt):

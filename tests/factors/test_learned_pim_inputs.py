@@ -1,0 +1,45 @@
+"""``learned_pim``: typed noise and time steps that the samples contradict (issue 26: a sigma given as ``gyro_cov``,
+0.5, or dt = 10 s were all accepted). Real samples: GTSAM's KITTI IMU file."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+
+from factors import learned_pim
+
+
+@pytest.fixture(scope="module")
+def kitti(shared_data):
+    table = np.loadtxt(shared_data / "kitti_gtsam" / "KittiEquivBiasedImu.txt", skiprows=1)
+    rows = table[1000:1500]  # columns: Time dt accelX accelY accelZ omegaX omegaY omegaZ
+    return rows[:, 5:8], rows[:, 2:5], rows[:, 0]  # gyro rad/s, acc m/s^2, t s
+
+
+def test_a_sigma_typed_as_a_covariance_is_warned_about_with_both_numbers(kitti, caplog):
+    gyro, acc, _ = kitti
+    with caplog.at_level(logging.WARNING, logger="factors.learned_pim"):
+        learned_pim(gyro, acc, 0.01, 1.75e-4**2, 0.01**2, 9.8)  # GTSAM's example densities, squared: no warning
+        assert not caplog.records
+        learned_pim(gyro, acc, 0.01, 1.75e-4, 0.01**2, 9.8)  # the gyro sigma given as sigma^2
+    assert len(caplog.records) == 1
+    text = caplog.records[0].getMessage()
+    assert "gyro_cov 0.000175" in text and "above" in text and "white noise of the samples" in text
+
+
+def test_a_model_s_per_sample_noise_is_not_judged_by_the_white_noise(kitti, caplog):
+    gyro, acc, _ = kitti
+    with caplog.at_level(logging.WARNING, logger="factors.learned_pim"):
+        learned_pim(gyro, acc, 0.01, np.full_like(gyro, 1e-2), np.full_like(acc, 1e-2), 9.8)  # a model may distrust
+    assert not caplog.records
+
+
+def test_a_time_step_slower_than_any_imu_is_refused(kitti):
+    gyro, acc, _ = kitti
+    with pytest.raises(ValueError, match=r"median dt is 10 s.*t\[i\+1\] - t\[i\]"):
+        learned_pim(gyro, acc, 10.0, 1e-8, 1e-4, 9.8)
+    gaps = np.full(len(gyro), 0.01)
+    gaps[100] = 5.0  # one real gap among 100 Hz samples: accepted
+    learned_pim(gyro, acc, gaps, 1e-8, 1e-4, 9.8)

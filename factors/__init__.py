@@ -6,6 +6,7 @@ from factors.gps import GpsFactor, gps_noise
 from factors.imu import LearnedImuFactor
 from factors.learned_pim import learned_combined_pim, learned_pim
 from factors.pim_from_deltas import PimLayoutError, pim_from_deltas  # the function (the module stays importable)
+from factors.relinearise import Relinearised, solve_relinearised
 
 __all__ = [
     "Export",
@@ -15,6 +16,7 @@ __all__ = [
     "GraphError",
     "LearnedImuFactor",
     "PimLayoutError",
+    "Relinearised",
     "check_anchored",
     "check_values",
     "solve_or_explain",
@@ -24,4 +26,5 @@ __all__ = [
     "learned_pim",
     "load_export",
     "pim_from_deltas",
+    "solve_relinearised",
 ]

@@ -33,9 +33,19 @@ from pathlib import Path
 
 import numpy as np
 
-from factors import load_export
+from factors import load_export, solve_relinearised
 from factors.noise import noise_mismatch
-from fusion.graph import BiasStates, FusionSettings, Solution, Trajectory, build_graph, solve
+from fusion.graph import (
+    BiasStates,
+    FusionSettings,
+    Solution,
+    Trajectory,
+    build_graph,
+    combined_params,
+    solve,
+    trajectory_of,
+)
+from fusion.initial import lm_params
 from learned_imu.datasets.sequence import GpsFixes, ImuSequence
 from learned_imu.errors import DataError, InputError
 from learned_imu.export import export_preintegration, fixes_on_samples, keyframes_every, nearest_samples
@@ -134,8 +144,19 @@ def fuse(
 
 
 def _solved(export, fixes: GpsFixes, settings: FusionSettings, bias: BiasStates | None) -> Solution:
+    """The graph solved; with bias states (and GTSAM's factors) re-linearised: every interval preintegrated again
+    around its solved bias until the biases move less than 1e-6 (``factors.solve_relinearised``)."""
     graph, values = build_graph(export, fixes, settings, bias=bias)
-    return solve(graph, values, export.keyframe_t, settings)
+    if bias is None or settings.backend != "gtsam":
+        return solve(graph, values, export.keyframe_t, settings)
+    combined = bias.factor == "combined"
+    done = solve_relinearised(graph, values, export, factor="combined" if combined else "imu",
+                              params=combined_params(export, bias) if combined else None,
+                              lm_params=lm_params(settings))  # fmt: skip
+    log.info("%s: bias re-linearisation: %d solves, last bias change %.2g", export.name, done.rounds,
+             done.bias_change)  # fmt: skip
+    trajectory = trajectory_of(done.values, export.keyframe_t)
+    return Solution(trajectory, done.graph, done.values, done.rounds, done.graph.error(done.values))
 
 
 def _check_noise(sequence: ImuSequence, noise_density: tuple[float, float]) -> None:

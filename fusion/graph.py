@@ -293,6 +293,17 @@ def build_graph(
     return _with_bias_states(values, export, bias, settings.backend, others)
 
 
+def combined_params(export: Export, bias: BiasStates) -> gtsam.PreintegrationCombinedParams:
+    """The ``CombinedImuFactor`` params of ``bias`` (``factor="combined"``): the export's gravity, no integration
+    noise, the bias random walk as continuous-time sigma^2 (the per-sample sigmas over the median sample step)."""
+    dt = float(np.median(np.diff(export.t)))
+    params = gtsam.PreintegrationCombinedParams(export.gravity)
+    params.setIntegrationCovariance(np.zeros((3, 3)))
+    params.setBiasAccCovariance(np.eye(3) * bias.acc_walk_sigma**2 / dt)
+    params.setBiasOmegaCovariance(np.eye(3) * bias.gyro_walk_sigma**2 / dt)
+    return params
+
+
 def _with_bias_states(values: gtsam.Values, export: Export, bias: BiasStates, backend: str, others: list):
     """The graph of ``others`` (GPS factors and priors), the export's IMU factors on ``B(k)``, the bias random walk
     and prior (``BiasStates``); ``values`` with every ``B(k)`` at zero in place of the constant ``B(0)``."""
@@ -300,12 +311,7 @@ def _with_bias_states(values: gtsam.Values, export: Export, bias: BiasStates, ba
     zero = gtsam.imuBias.ConstantBias()
     samples = np.diff(export.keyframe_index)
     if bias.factor == "combined":
-        dt = float(np.median(np.diff(export.t)))
-        params = gtsam.PreintegrationCombinedParams(export.gravity)
-        params.setIntegrationCovariance(np.zeros((3, 3)))
-        params.setBiasAccCovariance(np.eye(3) * bias.acc_walk_sigma**2 / dt)
-        params.setBiasOmegaCovariance(np.eye(3) * bias.gyro_walk_sigma**2 / dt)
-        imu_factors = from_export(export, X, V, B, "gtsam", factor="combined", params=params)[0]
+        imu_factors = from_export(export, X, V, B, "gtsam", factor="combined", params=combined_params(export, bias))[0]
     else:
         imu_factors = from_export(export, X, V, B, backend)[0]
     for factor in [*imu_factors, *others]:

@@ -157,6 +157,9 @@ class TrainConfig:
     plateau_factor: float = 0.5  # ReduceLROnPlateau on the validation loss
     plateau_patience: int = 5
     min_lr: float = 0.0  # the plateau schedule's floor (the official AirIMU schedule: 1e-5)
+    # exponential moving average of the weights, updated every step (0 = off): validation, best.pt and inference
+    # use the average, the optimiser steps the raw weights; the horizon is about 1 / (1 - ema_decay) steps
+    ema_decay: float = 0.0
     early_stop_patience: int = 0  # stop after this many epochs without a better validation loss; 0 = never
     calibration_steps: int = 200  # second stage: noise decoders alone on the NLL (0 = off; see train.py)
     # then one scale per sensor's noise fitted on the validation windows (train.fit_noise_scales); only where the
@@ -179,6 +182,7 @@ class TrainConfig:
         _check(self, "train.lr", _positive, "a positive number")
         _check(self, "train.weight_decay", _non_negative, "a number >= 0")
         _check(self, "train.plateau_factor", lambda v: 0.0 < v < 1.0, "in (0, 1)")
+        _check(self, "train.ema_decay", lambda v: 0.0 <= v < 1.0, "in [0, 1) (0 = no weight averaging)")
         _check(self, "train.min_lr", lambda v: 0.0 <= v <= self.lr, f"in [0, train.lr = {self.lr}]")
         _check(self, "train.chunk", lambda v: v == 0 or v >= self.window,
                f"0 (windows one by one) or at least train.window = {self.window} samples")  # fmt: skip

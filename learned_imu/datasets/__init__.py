@@ -27,6 +27,7 @@ from learned_imu.datasets.kitti import read_kitti
 from learned_imu.datasets.kitti_raw import read_kitti_raw
 from learned_imu.datasets.rosbag import read_rosbag
 from learned_imu.datasets.sequence import ImuSequence
+from learned_imu.datasets.tumvi import read_tumvi
 
 READERS: dict[str, Callable[..., ImuSequence]] = {
     "euroc": read_euroc,
@@ -35,6 +36,7 @@ READERS: dict[str, Callable[..., ImuSequence]] = {
     "broad": read_broad,
     "rosbag": read_rosbag,
     "csv": read_csv,
+    "tumvi": read_tumvi,
 }
 # the ReadChecks fields a reader cannot honour (each module's UNUSED_CHECKS): no option of that reader
 UNUSED_CHECKS = {"kitti": kitti.UNUSED_CHECKS, "kitti_raw": kitti_raw.UNUSED_CHECKS, "broad": broad.UNUSED_CHECKS}
@@ -121,20 +123,20 @@ def check_options(dataset: str, options: dict, where: str = "options") -> dict:
 # numeric reader and simulator options that must be positive and finite (their unit)
 POSITIVE_OPTIONS = {
     "duration_s": "s", "rate_hz": "Hz", "gps_rate_hz": "Hz", "gps_sigma_m": "m", "gps_sigma": "m",
-    "gravity": "m/s^2, the magnitude", "vel_window_s": "s",
+    "gravity": "m/s^2, the magnitude", "vel_window_s": "s", "max_gt_distance_s": "s",
 }  # fmt: skip
 
 
 def _choices() -> dict[str, tuple]:
     """Options with a fixed set of values, by name (the same name means the same choice in every reader)."""
-    from learned_imu.datasets import _checks, _rotations, csv, kitti_raw, rosbag
+    from learned_imu.datasets import _checks, _rotations, csv, kitti_raw, rosbag, tumvi
     from learned_imu.datasets.simulator import GRADES, PROFILES
 
     return {
         "on_gap": (*_checks.ON_GAP, SPLIT), "on_duplicate": _checks.ON_DUPLICATE, "on_backward": _checks.ON_BACKWARD,
         "gps_frame": kitti_raw.GPS_FRAMES, "stamp": rosbag.STAMPS, "quat_order": _rotations.QUAT_ORDERS,
         "time_unit": tuple(csv.TIME_UNITS), "gyro_unit": tuple(csv.GYRO_UNITS), "acc_unit": tuple(csv.ACC_UNITS),
-        "profile": PROFILES, "grade": tuple(GRADES),
+        "profile": PROFILES, "grade": tuple(GRADES), "imu": tuple(tumvi.IMU_FILES),
     }  # fmt: skip
 
 

@@ -171,9 +171,15 @@ def _local_poly_derivative(t: np.ndarray, pos: np.ndarray, window_s: float, poly
 
 
 def resample_ground_truth(
-    t: np.ndarray, gt: GtSamples, max_gap_steps: float = _checks.MAX_GAP_STEPS, vel_window_s: float = VEL_WINDOW_S
+    t: np.ndarray,
+    gt: GtSamples,
+    max_gap_steps: float = _checks.MAX_GAP_STEPS,
+    vel_window_s: float = VEL_WINDOW_S,
+    max_gt_distance_s: float | None = None,
 ) -> GroundTruth:
-    """Ground truth at the times ``t`` (see the module docstring for interpolation and validity)."""
+    """Ground truth at the times ``t`` (see the module docstring for interpolation and validity). With
+    ``max_gt_distance_s`` a sample is also invalid when either ground-truth stamp that brackets it is farther than
+    that (s): no value interpolated across a hole in a motion-capture stream (the TUM-VI reader's rule)."""
     steps = np.diff(gt.t)
     max_step = max_gap_steps * float(np.median(steps)) if steps.size else 0.0
     keep = gt.valid
@@ -188,6 +194,9 @@ def resample_ground_truth(
     inside = (t >= tg[0] - edge) & (t <= tg[-1] + edge)
     coincide = np.abs(t - tg[_nearest(tg, t)]) <= edge  # on a GT stamp: valid even at the edge of a gap
     valid = inside & ((span <= max_step) | coincide) & gt.valid[_nearest(gt.t, t)]
+    if max_gt_distance_s is not None:
+        near = (t - tg[k] <= max_gt_distance_s) & (tg[k + 1] - t <= max_gt_distance_s)
+        valid &= near | coincide
     f = frac[:, None]
     return GroundTruth(
         rot=slerp(rot[k], rot[k + 1], frac),
@@ -217,6 +226,7 @@ def build_sequence(
     checks: ReadChecks = ReadChecks(),
     line_of: Callable[[int], int | None] | None = None,
     frame_interval_s: float = _checks.GYRO_INTERVAL_S,
+    max_gt_distance_s: float | None = None,
 ) -> ImuSequence:
     """Checked sequence from IMU arrays (time stamps already strictly increasing) and optional raw GT.
 
@@ -225,6 +235,7 @@ def build_sequence(
             the reader's to apply, through ``_checks.check_timestamps``).
         line_of: maps an index of the given arrays to its file line, for error messages.
         frame_interval_s: the frame self-check's gyro interval (``_checks.frame_score``).
+        max_gt_distance_s: see ``resample_ground_truth``.
     Returns:
         The checked ``ImuSequence``.
     """
@@ -247,7 +258,11 @@ def build_sequence(
             "on_gap: split in a config)",
             line=line_of(int(rows[i + 1])),
         )
-    truth = resample_ground_truth(t, gt, vel_window_s=checks.vel_window_s) if gt is not None else None
+    truth = (
+        resample_ground_truth(t, gt, vel_window_s=checks.vel_window_s, max_gt_distance_s=max_gt_distance_s)
+        if gt is not None
+        else None
+    )
     if truth is not None and checks.check_frame:
         _checks.check_frame(
             t, gyro, acc, truth.rot, truth.valid, gravity, source, gt.source, truth.vel, frame_interval_s,

@@ -3,14 +3,20 @@
 The frame self-check uses two facts that hold for any correctly read sequence:
 
 - averaged over a sequence, the world acceleration is small (|v_end - v_start| / duration), so the mean of
-  ``R_gt @ acc`` (specific force in the world frame) is close to ``-gravity``, i.e. +|g| along world z;
+  ``R_gt @ (acc - b)`` (specific force in the world frame) is close to ``-gravity``, i.e. +|g| along world z, with
+  ``b`` the accelerometer's constant bias, fitted (least squares) and held to ``ACC_BIAS_MAX``: a real sensor's
+  bias (EuRoC's 0.55 m/s^2, raw TUM-VI's 1.4 m/s^2) is not a convention error, a permutation of the axes
+  (a "bias" of ~|g|) is;
 - the gyro integrated over a short interval equals the rotation between the ground-truth orientations at its
   ends, ``Log(R_i^T R_j) ~= integral of gyro`` (body frame), up to a constant gyro bias (fitted and removed).
 
 ``check_motion`` then holds the ground truth's translation to the same standard: over 1-s intervals the velocity
 change equals the IMU's specific force rotated to the world plus gravity, integrated, and the displacement equals
 the velocity integrated. A least-squares scale between the two far from 1 names the field (positions in mm or
-km, a negated or mis-scaled velocity).
+km, a negated or mis-scaled velocity). The velocity change's scale is fitted together with a constant
+accelerometer bias (IMU frame), so that on a gentle flight a normal bias, which over 1 s can outweigh the true
+velocity change, is not taken for a unit error; the predicted motion the bias does not explain must reach
+``MOTION_MIN_RMS``, else there is too little to judge.
 
 When the data as read fail, the usual mistakes are tried (quaternion order, inverted rotation, acc in g, gyro
 in deg/s, each also the other way round) and the DataError names the one that makes both facts hold.
@@ -18,6 +24,7 @@ in deg/s, each also the other way round) and the DataError names the one that ma
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import typing
 from collections.abc import Callable
@@ -48,7 +55,8 @@ GYRO_MAX = 40.0  # rad/s; above the 2000 deg/s (34.9 rad/s) full scale of common
 
 # frame self-check thresholds
 FRAME_MIN_SAMPLES = 200  # fewer valid ground-truth samples: the check is skipped
-ACC_TOL = 0.06  # |mean(R acc) + g| / |g|; 0.06 * 9.81 = 0.59 m/s^2 of mean acceleration + bias
+ACC_TOL = 0.06  # |mean(R (acc - b)) + g| / |g|; 0.06 * 9.81 = 0.59 m/s^2 of mean acceleration + bias beyond b
+ACC_BIAS_MAX = 2.0  # m/s^2 (0.2 g), the largest accelerometer bias the frame check fits away
 GYRO_TOL = 0.35  # rms(Log(R_i^T R_j)/dt - mean gyro - bias) / rms(Log(R_i^T R_j)/dt)
 GYRO_INTERVAL_S = 0.05  # length of the intervals the gyro is integrated over, s
 GYRO_MIN_RATE = 0.05  # rad/s rms; below this the ground truth barely rotates and the gyro test is skipped
@@ -195,18 +203,39 @@ class FrameScore:
     """Residuals of the two self-check facts; the data pass when both are below their tolerance.
 
     Attributes:
-        acc: |mean(R @ acc) + gravity| / |gravity|.
+        acc: |mean(R @ (acc - acc_bias)) + gravity| / |gravity|.
         gyro: relative rms mismatch of gyro and ground-truth rotation rate (0 when GT barely rotates).
-        mean_world_acc: (3,) mean of R @ acc, m/s^2.
+        mean_world_acc: (3,) mean of R @ acc, m/s^2 (as read, no bias removed).
+        acc_bias: (3,) m/s^2 IMU frame, the fitted accelerometer bias (at most ``ACC_BIAS_MAX`` long).
     """
 
     acc: float
     gyro: float
     mean_world_acc: np.ndarray
+    acc_bias: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(3))
 
     @property
     def ok(self) -> bool:
         return self.acc < ACC_TOL and self.gyro < GYRO_TOL
+
+
+def _bounded_bias(mean_rot: np.ndarray, residual: np.ndarray) -> np.ndarray:
+    """The bias b (3,) of length at most ``ACC_BIAS_MAX`` that minimises |residual - mean_rot @ b| (a trust-region
+    least squares: ridge-regularised, the weight found by bisection when the plain solution is longer)."""
+
+    def solve(weight: float) -> np.ndarray:
+        return np.linalg.solve(mean_rot.T @ mean_rot + weight * np.eye(3), mean_rot.T @ residual)
+
+    bias = np.linalg.lstsq(mean_rot, residual, rcond=None)[0]
+    if np.linalg.norm(bias) <= ACC_BIAS_MAX:
+        return bias
+    low, high = 0.0, 1.0
+    while np.linalg.norm(solve(high)) > ACC_BIAS_MAX:
+        high *= 10.0
+    for _ in range(60):
+        mid = 0.5 * (low + high)
+        low, high = (mid, high) if np.linalg.norm(solve(mid)) > ACC_BIAS_MAX else (low, mid)
+    return solve(high)
 
 
 def frame_score(t, gyro, acc, rot, valid, gravity, vel=None, interval_s: float = GYRO_INTERVAL_S) -> FrameScore:
@@ -219,7 +248,9 @@ def frame_score(t, gyro, acc, rot, valid, gravity, vel=None, interval_s: float =
     rows = np.flatnonzero(valid)
     if vel is not None and rows.size >= 2 and t[rows[-1]] > t[rows[0]]:
         expected = expected + (vel[rows[-1]] - vel[rows[0]]) / (t[rows[-1]] - t[rows[0]])
-    acc_res = float(np.linalg.norm(world_acc - expected) / np.linalg.norm(gravity))
+    mean_rot = rot[valid].mean(axis=0)
+    bias = _bounded_bias(mean_rot, world_acc - expected)
+    acc_res = float(np.linalg.norm(world_acc - mean_rot @ bias - expected) / np.linalg.norm(gravity))
     dt = np.diff(t, append=t[-1])
     step = max(1, int(round(interval_s / np.median(np.diff(t)))))
     i = np.arange(0, t.shape[0] - step, step)
@@ -237,7 +268,7 @@ def frame_score(t, gyro, acc, rot, valid, gravity, vel=None, interval_s: float =
             diff = rate_gt - rate_imu
             diff -= diff.mean(axis=0)  # a constant gyro bias is not a convention error
             gyro_res = float(np.sqrt((diff**2).sum(axis=1).mean())) / scale
-    return FrameScore(acc_res, gyro_res, world_acc)
+    return FrameScore(acc_res, gyro_res, world_acc, bias)
 
 
 def check_frame(
@@ -267,7 +298,8 @@ def check_frame(
         return score
     found = (
         f"mean of R_gt @ acc = {np.round(score.mean_world_acc, 3).tolist()} m/s^2, expected about "
-        f"{np.round(-gravity, 3).tolist()} (= -gravity; relative residual {score.acc:.3f}, tolerance "
+        f"{np.round(-gravity, 3).tolist()} (= -gravity; relative residual {score.acc:.3f} after removing an acc "
+        f"bias of {np.round(score.acc_bias, 3).tolist()} m/s^2, at most {ACC_BIAS_MAX:g} long; tolerance "
         f"{ACC_TOL}); gyro vs ground-truth rotation rate residual {score.gyro:.3f} (tolerance {GYRO_TOL})"
     )
     fits = []
@@ -279,7 +311,10 @@ def check_frame(
             fits.append((alt_score.acc / ACC_TOL + alt_score.gyro / GYRO_TOL, alt, alt_score))
     if not fits:
         if pos is not None and vel is not None:
-            check_motion(*motion)  # a translation in other units or sign explains it better
+            failure = _motion_failure(*motion)
+            if failure is not None and failure[1]:  # a translation in other units or sign explains it better
+                raise failure[0]
+        # else the frame error below: a motion scale that names no unit says little once the frame is wrong
         raise DataError(
             gt_source,
             "gt.rot",
@@ -301,6 +336,13 @@ def check_motion(t, acc, rot, pos, vel, valid, gravity, gt_source: object, vel_g
     velocity change is not the integrated specific force plus gravity, or its displacement not the integrated
     velocity, within ``MOTION_SCALE``. Skipped when the motion is too small to judge. Arrays as ``check_frame``'s,
     ``pos``/``vel`` (N, 3) world frame; ``vel_given``: the velocity was read from the file (not differentiated)."""
+    failure = _motion_failure(t, acc, rot, pos, vel, valid, gravity, gt_source, vel_given)
+    if failure is not None:
+        raise failure[0]
+
+
+def _motion_failure(t, acc, rot, pos, vel, valid, gravity, gt_source, vel_given) -> tuple[DataError, bool] | None:
+    """``check_motion``'s error and whether its scale names a unit or sign mistake, or None when it passes."""
     median_dt = float(np.median(np.diff(t)))
     step = max(1, int(round(MOTION_INTERVAL_S / median_dt)))
     i = np.arange(0, t.shape[0] - step, step)
@@ -311,15 +353,22 @@ def check_motion(t, acc, rot, pos, vel, valid, gravity, gt_source: object, vel_g
         ok &= np.searchsorted(bad_rows, i) == np.searchsorted(bad_rows, j)
     i, j = i[ok], j[ok]
     if i.shape[0] < 5:
-        return
+        return None
     dt = np.diff(t, append=t[-1])[:, None]
     world = np.where(valid[:, None], np.einsum("nij,nj->ni", rot, acc) + gravity, 0.0)
     integral = np.concatenate([np.zeros((1, 3)), np.cumsum(world * dt, axis=0)])
-    checks = [("gt.vel" if vel_given else "gt.pos", "velocity change", vel[j] - vel[i], integral[j] - integral[i])]
+    # what a constant body-frame acc bias b adds to the velocity change over [i, j]: A b with A the integral of R dt
+    rot_integral = np.concatenate([np.zeros((1, 3, 3)), np.cumsum(np.where(valid[:, None, None], rot, 0.0)
+                                                                  * dt[:, :, None], axis=0)])  # fmt: skip
+    bias_effect = rot_integral[j] - rot_integral[i]  # (intervals, 3 axes, 3 unknowns)
+    checks = [("gt.vel" if vel_given else "gt.pos", "velocity change", vel[j] - vel[i], integral[j] - integral[i],
+               bias_effect)]  # fmt: skip
     if vel_given:
         v_integral = np.concatenate([np.zeros((1, 3)), np.cumsum(np.where(valid[:, None], vel, 0.0) * dt, axis=0)])
-        checks.append(("gt.pos", "displacement", pos[j] - pos[i], v_integral[j] - v_integral[i]))
-    for field, what, observed, predicted in checks:
+        checks.append(("gt.pos", "displacement", pos[j] - pos[i], v_integral[j] - v_integral[i], None))
+    for field, what, observed, predicted, basis in checks:
+        if basis is not None:
+            observed, predicted = _without(basis, observed), _without(basis, predicted)
         rms = float(np.sqrt((predicted**2).sum(axis=1).mean()))
         if rms < MOTION_MIN_RMS:
             continue
@@ -328,12 +377,22 @@ def check_motion(t, acc, rot, pos, vel, valid, gravity, gt_source: object, vel_g
             continue
         source = "the integrated IMU (R_gt @ acc + gravity)" if what == "velocity change" else "the integrated velocity"
         hint = _scale_hint(scale)
-        raise DataError(
+        error = DataError(
             gt_source,
             field,
             f"motion self-check failed: over {MOTION_INTERVAL_S:g}-s intervals the ground truth's {what} is "
             f"{scale:.4g} times that of {source} (expected about 1){hint}",
         )
+        return error, bool(hint)
+    return None
+
+
+def _without(basis: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``x`` (M, 3) less its least-squares fit by ``basis`` (M, 3, P) @ c with one c (P,) for all rows: the part
+    of the motion that constant offsets do not explain."""
+    design = basis.reshape(-1, basis.shape[2])
+    coef, *_ = np.linalg.lstsq(design, x.reshape(-1), rcond=None)
+    return x - (design @ coef).reshape(x.shape)
 
 
 def _scale_hint(scale: float) -> str:

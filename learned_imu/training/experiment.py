@@ -135,9 +135,7 @@ def build_windows(sequences: list[ImuSequence], config: ExperimentConfig, stride
     if not parts:
         names = ", ".join(s.name for s in sequences)
         what = f"in chunks of {train.chunk} samples " if train.chunk else ""
-        raise InputError(
-            f"no window of {train.window} samples {what}without a gap or invalid ground truth in: {names}"
-        )
+        raise InputError(f"no window of {train.window} samples {what}without a gap or invalid ground truth in: {names}")
     return concat_chunks(parts) if train.chunk else concat_windows(parts)
 
 
@@ -192,6 +190,7 @@ def _train_run(config: ExperimentConfig, folder: Path, progress: bool, world: Wo
         batch_size=t.batch_size, lr=t.lr, weight_decay=t.weight_decay, weights=loss_weights(config),
         use_covariance=use_cov, plateau_factor=t.plateau_factor, plateau_patience=t.plateau_patience,
         seed=t.seed, world=world, device=resolve_device(t.device), min_lr=t.min_lr,
+        ema_decay=t.ema_decay,
     )  # fmt: skip
     trained_on = TrainedOn(
         rate_hz=float(np.median([1.0 / float(np.median(np.diff(s.t))) for s in train_seqs])),
@@ -206,7 +205,8 @@ def _train_run(config: ExperimentConfig, folder: Path, progress: bool, world: Wo
     while trainer.epochs_done < t.epochs and not _stalled(history, best, t.early_stop_patience):
         entry = trainer.epoch(on_batch=_progress_bar(progress and writer, trainer, history))
         if writer:  # the other ranks go on to the next epoch and wait for rank 0 in its first step
-            metrics = [evaluate_model(model, s, config) for s in val_seqs]
+            with trainer.averaged():
+                metrics = [evaluate_model(model, s, config) for s in val_seqs]
             entry = replace(entry, val_roe_deg=float(np.mean([m.roe_deg for m in metrics])),
                             val_rpe_rmse_m=float(np.mean([m.rpe_rmse_m for m in metrics])))  # fmt: skip
         entry = replace(entry, seconds=time.perf_counter() - clock)

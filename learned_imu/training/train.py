@@ -15,6 +15,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, fields
 
 import numpy as np
@@ -99,6 +100,7 @@ class Trainer:
         world: World | None = None,
         device: str = "cpu",
         min_lr: float = 0.0,
+        ema_decay: float = 0.0,
     ):
         if batch_size < 1 or len(train) == 0 or len(val) == 0:
             raise InputError(f"Trainer: need batch_size >= 1 and windows to train and validate, got {batch_size}")
@@ -116,6 +118,13 @@ class Trainer:
             self.optimiser, factor=plateau_factor, patience=plateau_patience, min_lr=min_lr
         )
         self.epochs_done = 0
+        if not 0.0 <= ema_decay < 1.0:
+            raise InputError(f"Trainer: ema_decay must be in [0, 1), got {ema_decay}")
+        self.ema_decay = ema_decay
+        # the exponential moving average of the weights (Polyak averaging), updated after every step; what is
+        # validated and what the checkpoint's "model" holds when ema_decay > 0 (the raw weights go on training)
+        self.average = None if ema_decay == 0.0 else _copy(model.state_dict())
+        self.averaged_steps = 0
 
     def epoch(self, on_batch: Callable[[float], None] | None = None) -> EpochLog:
         """Train one pass over the shuffled training windows (or chunks), validate, step the LR schedule."""
@@ -129,16 +138,45 @@ class Trainer:
             self.optimiser.zero_grad()
             (loss if scale == 1.0 else loss * scale).backward()
             self.optimiser.step()
+            self._update_average()
             losses.append(global_loss(loss.item(), scale, self.world))
             if on_batch is not None:
                 on_batch(losses[-1])
         lr = self.optimiser.param_groups[0]["lr"]
-        val_loss = from_writer(self.validation_loss, self.world)
+        with self.averaged():
+            val_loss = from_writer(self.validation_loss, self.world)
         self.scheduler.step(val_loss)
         entry = EpochLog(self.epochs_done, sum(losses) / len(losses), val_loss, lr)
         self.epochs_done += 1
         log.info("epoch %d: train %.5f, val %.5f, lr %.1e", entry.epoch, entry.train_loss, entry.val_loss, lr)
         return entry
+
+    @torch.no_grad()
+    def _update_average(self) -> None:
+        if self.average is None:
+            return
+        self.averaged_steps += 1
+        # warm-up (as timm's ModelEmaV2): the early average follows the weights instead of keeping the random init
+        decay = min(self.ema_decay, self.averaged_steps / (self.averaged_steps + 9))
+        for name, value in self.model.state_dict().items():
+            if value.is_floating_point():
+                self.average[name].lerp_(value, 1.0 - decay)
+            else:
+                self.average[name].copy_(value)
+
+    @contextmanager
+    def averaged(self):
+        """Inside, ``self.model`` holds the averaged weights (no-op without ``ema_decay``); the training weights
+        are back on exit."""
+        if self.average is None:
+            yield self.model
+            return
+        training = _copy(self.model.state_dict())
+        self.model.load_state_dict(self.average)
+        try:
+            yield self.model
+        finally:
+            self.model.load_state_dict(training)
 
     @torch.no_grad()
     def validation_loss(self) -> float:
@@ -155,23 +193,40 @@ class Trainer:
         return total / self.val.windows
 
     def state_dict(self) -> dict:
-        """Everything needed to continue exactly: model, optimiser, schedule, RNG states, epochs done."""
-        return {
-            "model": self.model.state_dict(),
+        """Everything needed to continue exactly: model, optimiser, schedule, RNG states, epochs done. With
+        ``ema_decay``, "model" is the averaged weights (what inference loads) and "training_weights" the ones the
+        optimiser steps."""
+        state = {
+            "model": self.model.state_dict() if self.average is None else _copy(self.average),
             "optimiser": self.optimiser.state_dict(),
             "scheduler": self.scheduler.state_dict(),
             "generator": self.generator.get_state(),
             "torch_rng": torch.get_rng_state(),
             "epochs_done": self.epochs_done,
         }
+        if self.average is not None:
+            state["training_weights"] = self.model.state_dict()
+            state["averaged_steps"] = self.averaged_steps
+        return state
 
     def load_state_dict(self, state: dict) -> None:
-        self.model.load_state_dict(state["model"])
+        if (self.average is None) != ("training_weights" not in state):
+            raise InputError("Trainer: the checkpoint was trained with a different train.ema_decay (on or off)")
+        if self.average is None:
+            self.model.load_state_dict(state["model"])
+        else:
+            self.model.load_state_dict(state["training_weights"])
+            self.average = _copy(state["model"])
+            self.averaged_steps = int(state["averaged_steps"])
         self.optimiser.load_state_dict(state["optimiser"])
         self.scheduler.load_state_dict(state["scheduler"])
         self.generator.set_state(state["generator"])
         torch.set_rng_state(state["torch_rng"])
         self.epochs_done = int(state["epochs_done"])
+
+
+def _copy(state: dict) -> dict:
+    return {name: value.detach().clone() for name, value in state.items()}
 
 
 def fit(

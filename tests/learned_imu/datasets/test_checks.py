@@ -303,9 +303,9 @@ def test_a_check_the_reader_cannot_honour_is_refused(tmp_path, reader, dataset, 
 
 
 def test_registry_lists_the_readers_and_rejects_unknown_names(shared_data):
-    assert set(READERS) == {"euroc", "kitti", "kitti_raw", "broad", "rosbag", "csv"}
-    known = "broad, csv, euroc, kitti, kitti_raw, rosbag"
-    with pytest.raises(ValueError, match=f"unknown dataset 'tumvi'; known datasets: {known}"):
-        read_sequence("tumvi", shared_data)
+    assert set(READERS) == {"euroc", "kitti", "kitti_raw", "broad", "rosbag", "csv", "tumvi"}
+    known = "broad, csv, euroc, kitti, kitti_raw, rosbag, tumvi"
+    with pytest.raises(ValueError, match=f"unknown dataset 'tum_vi'; known datasets: {known}"):
+        read_sequence("tum_vi", shared_data)
     seq = read_sequence("kitti", shared_data / "kitti_gtsam")
     assert len(seq) == 46967

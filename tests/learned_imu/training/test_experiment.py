@@ -356,3 +356,55 @@ def test_a_second_writer_of_a_run_folder_is_refused_naming_the_first(tmp_path):
             train_run(with_epochs(TINY, 1), run, progress=False)
         assert not (run / "config.yaml").exists() and not (run / "last.pt").exists()  # nothing written
     assert train_run(with_epochs(TINY, 1), run, progress=False).epochs == 1  # free once the holder is gone
+
+
+def test_weight_averaging_validates_and_ships_the_average_and_resumes_exactly(tmp_path):
+    """train.ema_decay: the checkpoint's model is the exponential moving average of the stepped weights, the
+    validation loss is the average's, and a run resumed from last.pt equals the uninterrupted one."""
+    from learned_imu.training.experiment import build_windows, load_sequences, loss_weights
+    from learned_imu.training.train import Trainer
+
+    config = dataclasses.replace(TINY, train=dataclasses.replace(TINY.train, ema_decay=0.9, epochs=2))
+    torch.manual_seed(0)
+    model = TINY_MODEL()
+    windows = build_windows(load_sequences(config.data.train, None), config, None)
+    val = build_windows(load_sequences(config.data.val, None), config, None)
+    trainer = Trainer(model, windows, val, batch_size=4, lr=3e-3, weights=loss_weights(config), ema_decay=0.9)
+    expected = {k: v.clone() for k, v in model.state_dict().items()}
+    step = trainer.optimiser.step
+
+    steps = []
+
+    def step_and_track(*args, **kwargs):  # the average by hand, after every optimiser step (with its warm-up)
+        out = step(*args, **kwargs)
+        steps.append(1)
+        d = min(0.9, len(steps) / (len(steps) + 9))
+        for k, v in model.state_dict().items():
+            expected[k] = d * expected[k] + (1 - d) * v if v.is_floating_point() else v.clone()
+        return out
+
+    trainer.optimiser.step = step_and_track
+    entry = trainer.epoch()
+    state = trainer.state_dict()
+    for k, v in expected.items():
+        torch.testing.assert_close(state["model"][k], v, rtol=1e-6, atol=1e-7)
+    assert any(not torch.equal(state["model"][k], state["training_weights"][k]) for k in expected)
+    with trainer.averaged():
+        assert trainer.validation_loss() == pytest.approx(entry.val_loss, rel=1e-6)
+    assert trainer.validation_loss() != pytest.approx(entry.val_loss, rel=1e-6)  # the raw weights differ
+    # through a run folder: resuming continues the average and the raw weights exactly
+    train_run(config, tmp_path / "whole", progress=False)
+    train_run(with_epochs(config, 1), tmp_path / "resumed", progress=False)
+    train_run(config, tmp_path / "resumed", progress=False)
+    a = load_checkpoint(tmp_path / "whole" / "last.pt").trainer
+    b = load_checkpoint(tmp_path / "resumed" / "last.pt").trainer
+    for key in ("model", "training_weights"):
+        assert all(torch.equal(a[key][k], b[key][k]) for k in a[key])
+    with pytest.raises(ConfigError, match="train.ema_decay"):
+        dataclasses.replace(TINY.train, ema_decay=1.0)
+
+
+def TINY_MODEL():
+    from learned_imu.network.checkpoint import build_model
+
+    return build_model(TINY.model)

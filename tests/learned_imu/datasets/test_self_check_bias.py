@@ -1,0 +1,70 @@
+"""The frame and motion self-checks take a real accelerometer bias for what it is, and still refuse the
+convention and unit mistakes (issue: a gentle EuRoC flight with its 0.55 m/s^2 bias was refused as a unit error)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from learned_imu.datasets import read_sequence
+from learned_imu.datasets._checks import check_frame
+from learned_imu.errors import DataError
+
+FLIGHTS = (
+    "MH_01_easy",
+    "MH_03_medium",
+    "MH_04_difficult",
+    "MH_05_difficult",
+    "V1_02_medium",
+    "V1_03_difficult",
+    "V2_01_easy",
+    "V2_02_medium",
+    "V2_03_difficult",
+)  # fmt: skip  (every shared flight with its IMU)
+
+
+def _check(seq, acc=None, gyro=None, pos=None) -> None:
+    gt = seq.gt
+    check_frame(
+        seq.t, seq.gyro if gyro is None else gyro, seq.acc if acc is None else acc, gt.rot, gt.valid, seq.gravity,
+        seq.source, "gt", gt.vel, pos=gt.pos if pos is None else pos, vel_given=True,
+    )  # fmt: skip
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("flight", FLIGHTS)
+def test_a_biased_accelerometer_passes_and_the_usual_mistakes_are_still_refused(shared_data, flight):
+    seq = read_sequence("euroc", shared_data / "euroc" / flight, check_frame=False)
+    _check(seq)
+    for axis in range(3):
+        for bias in (0.55, 1.0):  # m/s^2, EuRoC's own bias and about twice it
+            acc = seq.acc.copy()
+            acc[:, axis] += bias
+            _check(seq, acc=acc)
+    mistakes = {
+        "gt.rot": {"acc": seq.acc[:, [1, 0, 2]]},  # acc axes permuted (x <-> y)
+        "acc": {"acc": seq.acc / 9.80665},  # acc in g
+        "gyro": {"gyro": np.degrees(seq.gyro)},  # gyro in deg/s
+        "gt.pos": {"pos": seq.gt.pos * 1000.0},  # positions in mm
+    }
+    for field, change in mistakes.items():
+        with pytest.raises(DataError, match=f"field '{field}'"):
+            _check(seq, **change)
+    with pytest.raises(DataError, match="field 'gt.rot'"):
+        _check(seq, acc=seq.acc[:, [2, 1, 0]])  # x <-> z
+
+
+def test_v2_01_with_the_bias_of_v1_01_reads_by_default(shared_data, tmp_path):
+    """The issue's case through the reader: V2_01_easy with 0.55 m/s^2 added to acc y was refused."""
+    source = shared_data / "euroc" / "V2_01_easy" / "mav0"
+    imu = np.loadtxt(source / "imu0" / "data.csv", delimiter=",", comments="#")
+    imu[:, 5] += 0.55
+    folder = tmp_path / "V2_01_biased" / "mav0"
+    (folder / "imu0").mkdir(parents=True)
+    np.savetxt(folder / "imu0" / "data.csv", imu, delimiter=",", fmt=["%d"] + ["%.17g"] * 6)
+    (folder / "state_groundtruth_estimate0").mkdir()
+    (folder / "state_groundtruth_estimate0" / "data.csv").symlink_to(
+        source / "state_groundtruth_estimate0" / "data.csv"
+    )
+    seq = read_sequence("euroc", tmp_path / "V2_01_biased")
+    assert seq.gt.valid.mean() > 0.99

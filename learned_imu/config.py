@@ -28,6 +28,8 @@ Device = Literal["cpu", "cuda", "auto"]
 IntervalUnit = Literal["s", "frames"]  # learned_imu.evaluation.evaluate's
 DEVICES = typing.get_args(Device)
 INTERVAL_UNITS = typing.get_args(IntervalUnit)
+WindowRule = Literal["valid", "end_valid"]  # learned_imu.evaluation.evaluate's ``windows``
+WINDOW_RULES = typing.get_args(WindowRule)
 
 
 def _check(record, key: str, ok, expected: str) -> None:
@@ -198,9 +200,14 @@ class EvaluationConfig:
     interval: float = 1.0
     interval_unit: IntervalUnit = "s"
     frames: int = 10
+    # which windows are scored: "valid" (every sample of the window has ground truth) or "end_valid" (its end sample
+    # has; the official AirIMU evaluation's --mask, which its TUM-VI table uses: a window may start inside a hole of
+    # the ground truth, from the values interpolated across it)
+    windows: WindowRule = "valid"
 
     def __post_init__(self):
         _check(self, "evaluation.interval_unit", lambda v: v in INTERVAL_UNITS, f"one of {', '.join(INTERVAL_UNITS)}")
+        _check(self, "evaluation.windows", lambda v: v in WINDOW_RULES, f"one of {', '.join(WINDOW_RULES)}")
         _check(self, "evaluation.interval", _positive, "a positive number")
         _check(self, "evaluation.frames", lambda v: v >= 0, "a whole number >= 0 (0: not scored)")
 

@@ -19,6 +19,7 @@ from learned_imu.geometry.preintegration import NavState, predict, preintegrate
 from learned_imu.training.windows import usable_windows
 
 INTERVAL_UNITS = ("s", "frames")
+WINDOW_RULES = ("valid", "end_valid")
 
 
 @dataclass(frozen=True)
@@ -50,11 +51,17 @@ def evaluate(
     interval_unit: str = "s",
     gyro: np.ndarray | None = None,
     acc: np.ndarray | None = None,
+    windows: str = "valid",
 ) -> Evaluation:
     """Integrate ``sequence``'s IMU (or the given corrected ``gyro``/``acc``, (N, 3)) and score it.
 
-    ``interval`` is in seconds (``interval_unit="s"``) or IMU samples (``"frames"``).
+    ``interval`` is in seconds (``interval_unit="s"``) or IMU samples (``"frames"``). ``windows``: ``"valid"``
+    scores the windows whose every sample has ground truth; ``"end_valid"`` those whose end sample has (the official
+    AirIMU evaluation's ``--mask``, used by its TUM-VI table: the start state may be a value interpolated across a
+    hole in the ground truth).
     """
+    if windows not in WINDOW_RULES:
+        raise InputError(f"evaluate: windows must be one of {', '.join(WINDOW_RULES)}, got {windows!r}")
     if sequence.gt is None:
         raise InputError(f"{sequence.source or sequence.name}: evaluation needs ground truth, the sequence has none")
     gyro = sequence.gyro if gyro is None else _samples("gyro", gyro, len(sequence))
@@ -62,7 +69,10 @@ def evaluate(
     length = _window_length(sequence, interval, interval_unit)
     gt, dt = sequence.gt, sequence.dt
     starts = np.arange(0, len(sequence) - length, length)  # window [s, s + L) ends at state s + L <= N - 1
-    ok = usable_windows(sequence, starts, length)
+    if windows == "valid":
+        ok = usable_windows(sequence, starts, length)
+    else:  # no time gap inside the window either way
+        ok = gt.valid[starts + length] & usable_windows(sequence, starts, length, need_valid=False)
     starts = starts[ok]
     if len(starts) == 0:
         raise InputError(

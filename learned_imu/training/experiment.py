@@ -75,6 +75,7 @@ RESUMABLE_CHANGES = (
     "train.device",  # a run started on a GPU may finish on the CPU and vice versa
     "data.evaluate",  # what is scored after training, not what trains
     "evaluation.frames",
+    "evaluation.windows",
 )
 RUN_FILES = ("config.yaml", "metrics.jsonl", "best.pt", "last.pt")
 
@@ -147,7 +148,9 @@ def evaluate_model(model: AirImuNet, sequence: ImuSequence, config: ExperimentCo
     """The paper's metrics of the corrected IMU on ``sequence`` at the configured interval."""
     out = correct(model, sequence, config.train.remove_gravity)
     interval = config.evaluation
-    return evaluate(sequence, interval.interval, interval.interval_unit, out.gyro.numpy(), out.acc.numpy())
+    return evaluate(
+        sequence, interval.interval, interval.interval_unit, out.gyro.numpy(), out.acc.numpy(), interval.windows
+    )
 
 
 def train_run(

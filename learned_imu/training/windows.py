@@ -107,15 +107,17 @@ class Windows:
         )  # fmt: skip
 
 
-def usable_windows(sequence: ImuSequence, starts: np.ndarray, length: int) -> np.ndarray:
-    """(W,) bool: windows ``[s, s + length)`` with valid ground truth on all their states and no time gap
-    (``learned_imu.datasets.sequence.gap_indices``: e.g. KITTI's dropped OXTS packets, read with ``on_gap="keep"``), so
-    that integration restarts after a gap instead of bridging it."""
+def usable_windows(sequence: ImuSequence, starts: np.ndarray, length: int, need_valid: bool = True) -> np.ndarray:
+    """(W,) bool: windows ``[s, s + length)`` with valid ground truth on all their states (unless not
+    ``need_valid``) and no time gap (``learned_imu.datasets.sequence.gap_indices``: e.g. KITTI's dropped OXTS packets,
+    read with ``on_gap="keep"``), so that integration restarts after a gap instead of bridging it."""
     gap = np.zeros(len(sequence), dtype=bool)
     gap[gap_indices(sequence.t)] = True  # sample i is followed by a gap
     gaps_before = np.concatenate([[0], np.cumsum(gap)])  # gaps after samples [0, k)
     invalid_before = np.concatenate([[0], np.cumsum(~sequence.gt.valid)])
     no_gap = gaps_before[starts + length] - gaps_before[starts] == 0
+    if not need_valid:
+        return no_gap
     all_valid = invalid_before[starts + length + 1] - invalid_before[starts] == 0
     return no_gap & all_valid
 

@@ -188,6 +188,8 @@ def fuse(
             else ""
         )
     )
+    fits = ", ".join(f"{kind} {r['chi2_per_dof']:.3g}" for kind, r in (summary.normalised_residuals or {}).items())
+    console.print(f"normalised residuals (chi-square per degree of freedom, about 1 when the inputs fit): {fits}")
     for item in written:
         console.print(f"written: {item}")
 

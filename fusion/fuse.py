@@ -35,6 +35,7 @@ import numpy as np
 
 from factors import load_export, solve_relinearised
 from factors.noise import noise_mismatch
+from fusion import consistency
 from fusion.graph import (
     BiasStates,
     FusionSettings,
@@ -74,6 +75,9 @@ class FusedSummary:
     rmse_to_gps_m: float
     ate_aligned_m: float | None
     ate_unaligned_m: float | None
+    # per kind of factor ("gps", "imu", "bias", "prior"): factors, dof and chi-square per degree of freedom at the
+    # solution (``fusion.consistency``; about 1 when the inputs fit their sigmas)
+    normalised_residuals: dict | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -85,6 +89,7 @@ class Fused:
     correction: Correction
     gps: GpsFixes
     sequence: ImuSequence
+    residuals: dict = dataclasses.field(default_factory=dict)  # fusion.consistency.residuals of the solution
 
 
 def fuse(
@@ -140,7 +145,10 @@ def fuse(
     with tempfile.TemporaryDirectory() as folder:
         export = load_export(export_preintegration(Path(folder) / "fuse.npz", blind, index, correction=correction))
         solution = _solved(export, sequence.gps, settings, bias)
-    return Fused(solution, correction, sequence.gps, sequence)
+    found = consistency.residuals(solution.graph, solution.values)
+    for message in consistency.check(found):  # the result against its own noise model
+        log.warning("%s: %s", where, message)
+    return Fused(solution, correction, sequence.gps, sequence, found)
 
 
 def _solved(export, fixes: GpsFixes, settings: FusionSettings, bias: BiasStates | None) -> Solution:
@@ -298,8 +306,9 @@ def write_outputs(result: Fused, folder: Path, reference: GpsFixes | None = None
         if keep.sum() >= 3:
             aligned = ate_m(gt.pos[sample[keep]], dense.pos[keep], align=True)  # the truth into the fused frame
             unaligned = ate_m(gt.pos[sample[keep]], dense.pos[keep], align=False)
+    normalised = {kind: r.to_json_dict() for kind, r in result.residuals.items()}
     summary = FusedSummary(result.sequence.name, len(trajectory.t), len(result.gps.t), int(inside.sum()), rmse,
-                           aligned, unaligned)  # fmt: skip
+                           aligned, unaligned, normalised)  # fmt: skip
     written.append(write_json_atomic(folder / "summary.json", dataclasses.asdict(summary)))
     return summary, written
 

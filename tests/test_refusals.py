@@ -169,7 +169,7 @@ OPTION_CASES = {
     "reader typo": ("{dataset: euroc, path: x, options: {imu_fle: a.csv}}", "options 'imu_fle'"),
     "simulator typo": ("{dataset: simulator, options: {sede: 3}}", "options 'sede'"),
     "wrong type": ("{dataset: simulator, options: {duration_s: long}}", "options 'duration_s': expected float"),
-    "unknown dataset": ("{dataset: tumvi, path: x}", "unknown dataset 'tumvi'"),
+    "unknown dataset": ("{dataset: tum_vi, path: x}", "unknown dataset 'tum_vi'"),
     "not a mapping": ("{dataset: simulator, options: [1, 2]}", "expected a mapping"),
     "object option": ("{dataset: simulator, options: {error_model: {gyro: 1}}}", "options 'error_model'"),
     "zero rate": ("{dataset: simulator, options: {rate_hz: 0}}", "options 'rate_hz': expected a positive number"),

@@ -1,4 +1,4 @@
-"""EuRoC MAV / TUM-VI sequences in the ASL folder layout, read unchanged.
+"""EuRoC MAV sequences in the ASL folder layout, read unchanged (TUM-VI exports: ``learned_imu.datasets.tumvi``).
 
 Layout: ``<seq>/mav0/imu0/data.csv`` and, optionally, ground truth in ``<seq>/mav0/state_groundtruth_estimate0/``
 as the official ``data.csv`` or a TUM-format ``groundtruth_tum.txt`` (the official file wins when both exist).

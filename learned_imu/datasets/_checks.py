@@ -16,7 +16,8 @@ the velocity integrated. A least-squares scale between the two far from 1 names 
 km, a negated or mis-scaled velocity). The velocity change's scale is fitted together with a constant
 accelerometer bias (IMU frame), so that on a gentle flight a normal bias, which over 1 s can outweigh the true
 velocity change, is not taken for a unit error; the predicted motion the bias does not explain must reach
-``MOTION_MIN_RMS``, else there is too little to judge.
+``MOTION_MIN_RMS``, else there is too little to judge, unless the ground truth moves more than
+``MOTION_IMPLAUSIBLE_RMS`` over the intervals while the IMU stays still (positions in mm on a gentle recording).
 
 When the data as read fail, the usual mistakes are tried (quaternion order, inverted rotation, acc in g, gyro
 in deg/s, each also the other way round) and the DataError names the one that makes both facts hold.
@@ -63,6 +64,9 @@ GYRO_MIN_RATE = 0.05  # rad/s rms; below this the ground truth barely rotates an
 # motion self-check (positions and velocities in the IMU's metres and seconds, same sign)
 MOTION_INTERVAL_S = 1.0  # intervals over which velocity change and displacement are compared, s
 MOTION_MIN_RMS = 0.2  # m/s (velocity change) or m (displacement) rms over the intervals; less: too still to judge
+# ... unless the ground truth's own rms over the intervals exceeds this (m/s or m): positions in mm on a still or
+# gentle recording (a GNSS/INS position wanders by ~0.4 m over 1 s when parked, KITTI 2011_09_28_drive_0039)
+MOTION_IMPLAUSIBLE_RMS = 5.0
 MOTION_SCALE = (0.5, 2.0)  # fitted ground truth / prediction scale accepted (mm read as m gives 1000, negated -1)
 
 
@@ -370,12 +374,20 @@ def _motion_failure(t, acc, rot, pos, vel, valid, gravity, gt_source, vel_given)
         if basis is not None:
             observed, predicted = _without(basis, observed), _without(basis, predicted)
         rms = float(np.sqrt((predicted**2).sum(axis=1).mean()))
-        if rms < MOTION_MIN_RMS:
-            continue
+        seen = float(np.sqrt((observed**2).sum(axis=1).mean()))
+        if rms < MOTION_MIN_RMS and seen < MOTION_IMPLAUSIBLE_RMS:
+            continue  # too still to judge, and the ground truth is still too
+        source = "the integrated IMU (R_gt @ acc + gravity)" if what == "velocity change" else "the integrated velocity"
+        if rms < MOTION_MIN_RMS:  # a still IMU under a ground truth that moves metres a second: its unit
+            unit = "m/s" if what == "velocity change" else "m"
+            problem = (
+                f"motion self-check failed: over {MOTION_INTERVAL_S:g}-s intervals the ground truth's {what} is "
+                f"{seen:.4g} {unit} rms while that of {source} is {rms:.3g} {unit}: positions in mm or cm, not m?"
+            )
+            return DataError(gt_source, field, problem), True
         scale = float((observed * predicted).sum() / (predicted**2).sum())
         if MOTION_SCALE[0] <= scale <= MOTION_SCALE[1]:
             continue
-        source = "the integrated IMU (R_gt @ acc + gravity)" if what == "velocity change" else "the integrated velocity"
         hint = _scale_hint(scale)
         error = DataError(
             gt_source,

@@ -68,3 +68,23 @@ def test_v2_01_with_the_bias_of_v1_01_reads_by_default(shared_data, tmp_path):
     )
     seq = read_sequence("euroc", tmp_path / "V2_01_biased")
     assert seq.gt.valid.mean() > 0.99
+
+
+def test_positions_in_mm_on_a_parked_car_are_refused(shared_data):
+    """KITTI 2011_09_28_drive_0039: the car hardly moves (1-s displacements of the integrated velocity 0.09 m rms,
+    too little to judge a scale) while its GNSS/INS position wanders by 0.36 m rms: accepted in m; in mm the ground
+    truth moves hundreds of "metres" a second against a still IMU and is refused naming the unit."""
+    path = shared_data / "kitti_raw" / "2011_09_28_drive_0039.csv"
+    options = {"on_duplicate": "drop", "on_gap": "keep", "on_backward": "drop"}
+    seq = read_sequence("kitti_raw", path, check_frame=False, **options)
+    gt = seq.gt
+
+    def run(scale: float) -> None:
+        check_frame(seq.t, seq.gyro, seq.acc, gt.rot, gt.valid, seq.gravity, seq.source, "gt", gt.vel,
+                    pos=gt.pos * scale, vel_given=True, interval_s=0.3)  # fmt: skip
+
+    run(1.0)
+    expected = (r"field 'gt.pos': motion self-check failed: .* displacement is 36\d(\.\d)? m rms while that of the "
+                r"integrated velocity is 0.0\d+ m: positions in mm or cm")
+    with pytest.raises(DataError, match=expected):
+        run(1000.0)

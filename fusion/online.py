@@ -147,6 +147,7 @@ class OnlineFusion:
         self._frozen: dict[int, tuple[gtsam.Pose3, np.ndarray]] = {}  # keyframes that left the fixed-lag window
         self._flushed = False
         self._rate_checked = False
+        self.unused_fixes: tuple[float, ...] = ()  # times of the fixes flush() could not use
 
     @property
     def keyframes(self) -> int:
@@ -198,15 +199,27 @@ class OnlineFusion:
     def flush(self) -> int:
         """End of the stream: the model's last partial block is padded with the last sample (as
         ``correct_sequence`` does), completed keyframes are added, and waiting fixes within half an interval of the
-        last keyframe attach to it. Further samples are refused. Returns the number of keyframes added."""
+        last keyframe attach to it; later ones are not used, logged as a warning and kept in ``unused_fixes``
+        (their times, s). Further samples are refused. Returns the number of keyframes added."""
         if self._model is not None and not self._flushed:
             self._correct(flush=True)  # also the samples the model holds back for an incomplete block
         self._flushed = True
         added = self._close_keyframes()
+        late = []
         for fix in self._waiting:
             if fix[0] - self._kf_t[-1] <= 0.5 * self._keyframe_s:
                 self._attach(len(self._kf_t) - 1, fix)
+            else:
+                late.append(fix[0])
         self._waiting = []
+        self.unused_fixes = tuple(late)
+        if late:
+            log.warning(
+                "OnlineFusion.flush: %d GPS fix(es) at t = %s s lie more than half a keyframe interval after the last "
+                "IMU sample (%s s) and were not used: a GPS clock ahead of the IMU's, or the stream cut short?",
+                len(late), ", ".join(f"{t:.3f}" for t in late[:5]) + (" ..." if len(late) > 5 else ""),
+                f"{self._t[-1]:.3f}",
+            )  # fmt: skip
         return added
 
     def current_state(self) -> OnlineState:

@@ -3,6 +3,7 @@ after every update, and bad input is refused by name."""
 
 from __future__ import annotations
 
+import logging
 import subprocess
 import sys
 
@@ -164,7 +165,7 @@ def test_fixed_lag_bounds_the_window_and_stays_close(sequence, tmp_path):
     assert fusion.add_gps(5.0, seq.gt.pos[1000], 0.1) is False  # a fix for a keyframe that left: dropped
 
 
-def test_bad_input_is_refused_by_name(sequence):
+def test_bad_input_is_refused_by_name(sequence, caplog):
     seq = sequence
     fusion = OnlineFusion(None, seq.gravity, first_state(seq), KEYFRAME_S, *DENSITIES)
     with pytest.raises(InputError, match="precedes the first IMU sample"):
@@ -187,7 +188,12 @@ def test_bad_input_is_refused_by_name(sequence):
     # refused blocks left nothing behind: the stream goes on to its first keyframe
     assert fusion.add_imu(seq.t[5:101], seq.gyro[5:101], seq.acc[5:101]) == 1
     assert fusion.trajectory().t.tolist() == [seq.t[0], seq.t[100]]
-    fusion.flush()
+    # a fix far after the last sample waits for a keyframe that never comes: flush says so and keeps its time
+    assert fusion.add_gps(seq.t[100] + 30.0, seq.gt.pos[100], 0.5) is False
+    with caplog.at_level(logging.WARNING):
+        fusion.flush()
+    assert "1 GPS fix(es)" in caplog.text and "were not used" in caplog.text
+    assert fusion.unused_fixes == (seq.t[100] + 30.0,)
     with pytest.raises(InputError, match="flushed"):
         fusion.add_imu(seq.t[101], seq.gyro[101], seq.acc[101])
     with pytest.raises(InputError, match="eval"):

@@ -121,7 +121,15 @@ class GtSamples:
 
     @classmethod
     def from_quaternions(cls, t, quat, order: str, pos, vel, source, field: str = "gt.quaternion") -> GtSamples:
-        """Build from (M, 4) quaternions in ``order``; rows with a non-finite value are marked invalid."""
+        """Build from (M, 4) quaternions in ``order``; rows with a NaN (a missing sample) are marked invalid, an
+        infinite value is refused (no recorder writes inf for "missing": a unit or overflow error upstream)."""
+        infinite = np.isinf(quat).any(axis=1) | np.isinf(pos).any(axis=1)
+        if vel is not None:
+            infinite |= np.isinf(vel).any(axis=1)
+        if infinite.any():
+            row = int(np.argmax(infinite))
+            raise DataError(source, "gt", f"ground-truth sample {row} (t = {float(t[row])!r}) holds an infinite value; "
+                            f"NaN marks a missing sample, inf does not ({int(infinite.sum())} such sample(s))")
         valid = np.isfinite(quat).all(axis=1) & np.isfinite(pos).all(axis=1)
         if vel is not None:
             valid &= np.isfinite(vel).all(axis=1)

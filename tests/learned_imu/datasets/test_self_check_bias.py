@@ -88,3 +88,24 @@ def test_positions_in_mm_on_a_parked_car_are_refused(shared_data):
                 r"integrated velocity is 0.0\d+ m: positions in mm or cm")
     with pytest.raises(DataError, match=expected):
         run(1000.0)
+
+
+def test_an_infinite_ground_truth_value_is_refused_and_nan_stays_a_missing_sample(shared_data, tmp_path):
+    source = shared_data / "euroc" / "V1_02_medium" / "mav0"
+    folder = tmp_path / "V1_02" / "mav0"
+    (folder / "imu0").mkdir(parents=True)
+    (folder / "imu0" / "data.csv").symlink_to(source / "imu0" / "data.csv")
+    (folder / "state_groundtruth_estimate0").mkdir()
+    lines = (source / "state_groundtruth_estimate0" / "data.csv").read_text().splitlines()
+    gt_file = folder / "state_groundtruth_estimate0" / "data.csv"
+    for marker, accepted in (("nan", True), ("inf", False), ("-inf", False)):
+        edited = list(lines)
+        fields = edited[500].split(",")
+        fields[1] = marker
+        edited[500] = ",".join(fields)
+        gt_file.write_text("\n".join(edited) + "\n")
+        if accepted:
+            assert (~read_sequence("euroc", tmp_path / "V1_02").gt.valid).sum() >= 1
+        else:
+            with pytest.raises(DataError, match="field 'gt': ground-truth sample 499 .* holds an infinite value"):
+                read_sequence("euroc", tmp_path / "V1_02")

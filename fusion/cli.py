@@ -290,8 +290,8 @@ def _overrides(config, epochs: int | None, device: str | None):
 
 @app.command()
 def evaluate(
-    dataset: str = typer.Option(..., help="reader name: euroc, kitti, broad, rosbag, csv"),
-    path: str = typer.Option(..., help="the sequence (EuRoC/TUM-VI: the folder holding mav0/)"),
+    dataset: str = typer.Option(..., help="reader name: euroc, tumvi, kitti, kitti_raw, broad, rosbag, csv"),
+    path: str = typer.Option(..., help="the sequence (EuRoC, TUM-VI: the folder holding mav0/)"),
     interval: float = typer.Option(1.0, help="evaluation interval, in --interval-unit"),
     interval_unit: str = typer.Option("s", help="'s' (seconds) or 'frames' (IMU samples)"),
     imu_file: str = typer.Option(None, help="EuRoC/TUM-VI: IMU csv relative to the sequence folder"),
@@ -465,7 +465,7 @@ def _ours(cell) -> str:
 @app.command()
 def export(
     checkpoint: str = typer.Option(None, help="trained model (best.pt); without it the raw IMU is exported"),
-    dataset: str = typer.Option(..., help="reader name: euroc, kitti, broad, rosbag, csv"),
+    dataset: str = typer.Option(..., help="reader name: euroc, tumvi, kitti, kitti_raw, broad, rosbag, csv"),
     path: str = typer.Option(..., help="the sequence"),
     keyframes: str = typer.Option("0.1s", help="keyframe interval like '0.1s', or a file of times (s) per line"),
     out: str = typer.Option(..., help="output .npz (format in learned_imu.export)"),

@@ -21,6 +21,7 @@ Conventions:
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +32,7 @@ from learned_imu.datasets._table import read_table
 from learned_imu.datasets.sequence import ImuSequence
 from learned_imu.errors import DataError
 
+log = logging.getLogger(__name__)
 GRAVITY = 9.81007  # m/s^2, the value AirIMU uses for EuRoC
 NS = 1e-9
 IMU_FILE = Path("mav0/imu0/data.csv")
@@ -86,6 +88,10 @@ def read_euroc(
         )
         if gt_path is not None:
             gt = read_euroc_ground_truth(gt_path, on_duplicate=checks.on_duplicate)
+        elif (root / GT_DIR).is_dir():
+            there = sorted(p.name for p in (root / GT_DIR).iterdir())
+            log.warning("%s: no ground truth read: the folder holds %s, not %s (pass gt_file=...)", root / GT_DIR,
+                        there or "nothing", " or ".join(f.name for f in GT_FILES))  # fmt: skip
     return build_sequence(
         root.name,
         imu_path,

@@ -86,6 +86,10 @@ def read_rosbag(
             _require_topic(path, types, imu_topic, (IMU_TYPE,), "imu_topic")
             imu = _collect(reader, imu_topic, stamp, _imu_row, path, "imu_topic")
             gt = None
+            candidates = sorted(t for t, m in types.items() if m in (ODOMETRY_TYPE, *POSE_TYPES))
+            if gt_topic is None and candidates:
+                logger.warning("%s: read without ground truth, though the bag has pose topics %s (pass gt_topic=...)",
+                               path, candidates)  # fmt: skip
             if gt_topic is not None:
                 kind = _require_topic(path, types, gt_topic, (ODOMETRY_TYPE, *POSE_TYPES), "gt_topic")
                 row = _odometry_row if kind == ODOMETRY_TYPE else _pose_row

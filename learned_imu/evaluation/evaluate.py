@@ -63,7 +63,10 @@ def evaluate(
     if windows not in WINDOW_RULES:
         raise InputError(f"evaluate: windows must be one of {', '.join(WINDOW_RULES)}, got {windows!r}")
     if sequence.gt is None:
-        raise InputError(f"{sequence.source or sequence.name}: evaluation needs ground truth, the sequence has none")
+        raise InputError(
+            f"{sequence.source or sequence.name}: evaluation needs ground truth, and the sequence was read without "
+            "any (its reader found no ground-truth file or topic; the reader options gt_file or gt_topic name one)"
+        )
     gyro = sequence.gyro if gyro is None else _samples("gyro", gyro, len(sequence))
     acc = sequence.acc if acc is None else _samples("acc", acc, len(sequence))
     length = _window_length(sequence, interval, interval_unit)

@@ -112,14 +112,21 @@ def load_sequences(specs: tuple[SequenceConfig, ...], root: str | Path) -> list[
     return [seq for spec in specs for seq in load_sequence(spec, root)]
 
 
-def build_windows(sequences: list[ImuSequence], config: ExperimentConfig, stride: int | None) -> TrainingData:
+def build_windows(
+    sequences: list[ImuSequence], config: ExperimentConfig, stride: int | None, key: str = "data.train"
+) -> TrainingData:
     """Windows of every sequence, concatenated (with ``train.chunk``, chunks holding those windows:
     ``learned_imu.training.chunks``); a sequence without a usable window (time gaps in every one, as in some KITTI
-    drives, or shorter than a chunk) is skipped with a warning, none at all is an error naming them."""
+    drives, or shorter than a chunk) is skipped with a warning, none at all is an error naming them, ``key`` (the
+    config key that listed them) and ``train.window``."""
     train = config.train
+    if not sequences:
+        raise ConfigError(f"{key}: no sequence listed (training needs at least one)")
     parts = []
     for s in sequences:
-        if train.chunk:
+        if train.context + train.window >= len(s):  # shorter than one window: skipped like one without any
+            part = None
+        elif train.chunk:
             part = make_chunks(
                 s, train.chunk, train.window, train.every, stride or train.window, remove_gravity=train.remove_gravity,
                 allow_empty=True, context=train.context, gt_rotation=train.gt_rotation,
@@ -134,9 +141,15 @@ def build_windows(sequences: list[ImuSequence], config: ExperimentConfig, stride
         else:
             parts.append(part)
     if not parts:
-        names = ", ".join(s.name for s in sequences)
-        what = f"in chunks of {train.chunk} samples " if train.chunk else ""
-        raise InputError(f"no window of {train.window} samples {what}without a gap or invalid ground truth in: {names}")
+        found = ", ".join(
+            f"{s.name} ({len(s)} samples, {int(s.gt.valid.sum()) if s.gt is not None else 0} with ground truth)"
+            for s in sequences
+        )
+        what = f" (and train.chunk = {train.chunk})" if train.chunk else ""
+        raise InputError(
+            f"train.window = {train.window} samples{what}: no window without a gap or invalid ground truth in "
+            f"{key}: {found}; a shorter train.window, on_gap: split, or sequences with more ground truth"
+        )
     return concat_chunks(parts) if train.chunk else concat_windows(parts)
 
 
@@ -189,7 +202,7 @@ def _train_run(config: ExperimentConfig, folder: Path, progress: bool, world: Wo
     use_cov = config.loss.covariance > 0
     trainer = Trainer(
         model, build_windows(train_seqs, config, t.stride or None),
-        build_windows(val_seqs, config, t.val_stride or None),
+        build_windows(val_seqs, config, t.val_stride or None, "data.val"),
         batch_size=t.batch_size, lr=t.lr, weight_decay=t.weight_decay, weights=loss_weights(config),
         use_covariance=use_cov, plateau_factor=t.plateau_factor, plateau_patience=t.plateau_patience,
         seed=t.seed, world=world, device=resolve_device(t.device), min_lr=t.min_lr,

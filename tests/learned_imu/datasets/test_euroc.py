@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from learned_imu.datasets import ReadChecks
+from learned_imu.datasets import ReadChecks, read_sequence
 from learned_imu.datasets._assemble import differentiate_positions
 from learned_imu.datasets.euroc import read_euroc, read_euroc_ground_truth
 from learned_imu.errors import DataError
@@ -196,3 +196,21 @@ def test_tum_quaternion_in_the_wrong_order_is_named(shared_data, tmp_path):
     with pytest.raises(DataError, match="file is scalar-first") as err:
         read_euroc(_copy(shared_data, tmp_path, gt_edit=to_wxyz))
     assert err.value.field == "gt.rot" and err.value.path.name == "groundtruth_tum.txt"
+
+
+def test_a_ground_truth_folder_without_a_known_file_is_named(shared_data, tmp_path, caplog):
+    import logging
+
+    from learned_imu.errors import InputError
+    from learned_imu.evaluation.evaluate import evaluate
+
+    folder = tmp_path / "V1_02" / "mav0"
+    (folder / "imu0").mkdir(parents=True)
+    (folder / "imu0" / "data.csv").symlink_to(shared_data / "euroc" / "V1_02_medium" / "mav0" / "imu0" / "data.csv")
+    (folder / "state_groundtruth_estimate0" / "old").mkdir(parents=True)
+    with caplog.at_level(logging.WARNING):
+        seq = read_sequence("euroc", tmp_path / "V1_02")
+    assert seq.gt is None
+    assert "state_groundtruth_estimate0: no ground truth read: the folder holds ['old']" in caplog.text
+    with pytest.raises(InputError, match="evaluation needs ground truth.*gt_file"):
+        evaluate(seq, 1.0)

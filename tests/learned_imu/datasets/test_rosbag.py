@@ -3,6 +3,8 @@ of the real EuRoC V1_02 IMU and ground truth, read back and compared with the Eu
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import pytest
 from rosbags.rosbag1 import Writer as Writer1
@@ -14,7 +16,8 @@ from learned_imu.datasets import ReadChecks
 from learned_imu.datasets._rotations import matrix_to_quat_wxyz
 from learned_imu.datasets.euroc import read_euroc
 from learned_imu.datasets.rosbag import read_rosbag
-from learned_imu.errors import DataError
+from learned_imu.errors import DataError, InputError
+from learned_imu.evaluation.evaluate import evaluate
 
 SAMPLES = 2000  # 10 s at 200 Hz
 
@@ -127,11 +130,16 @@ def test_bag_round_trip_matches_the_euroc_reader(bags, euroc, kind):
         assert np.sqrt((vel_err**2).mean()) < 0.005
 
 
-def test_bare_mcap_file_and_bag_receive_time(bags, euroc):
+def test_bare_mcap_file_and_bag_receive_time(bags, euroc, caplog):
     mcap = next(bags["ros2_mcap_odometry"].glob("*.mcap"))
-    seq = read_rosbag(mcap, stamp="bag", checks=ReadChecks(check_frame=False))
+    with caplog.at_level(logging.WARNING):
+        seq = read_rosbag(mcap, stamp="bag", checks=ReadChecks(check_frame=False))
     assert len(seq) == SAMPLES and seq.gt is None
     np.testing.assert_array_equal(seq.gyro, euroc["gyro"])
+    # read without ground truth from a bag that has a pose topic: the warning names it and the option
+    assert "read without ground truth, though the bag has pose topics ['/gt'] (pass gt_topic=...)" in caplog.text
+    with pytest.raises(InputError, match="evaluation needs ground truth.*gt_topic"):
+        evaluate(seq, 1.0)
 
 
 def test_topic_choice_and_errors(bags, euroc):

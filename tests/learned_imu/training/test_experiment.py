@@ -19,7 +19,7 @@ from learned_imu.config import (
     from_dict,
 )
 from learned_imu.datasets.simulator import ImuErrorModel, simulate_with_truth
-from learned_imu.errors import ConfigError, DataError
+from learned_imu.errors import ConfigError, DataError, InputError
 from learned_imu.evaluation.ablation import VARIANTS, ablate, write_rows
 from learned_imu.evaluation.baselines import average_bias
 from learned_imu.network.checkpoint import load_checkpoint, model_from_checkpoint
@@ -408,3 +408,13 @@ def TINY_MODEL():
     from learned_imu.network.checkpoint import build_model
 
     return build_model(TINY.model)
+
+
+def test_no_window_to_train_names_the_key_the_window_and_the_sequences(tmp_path):
+    empty = dataclasses.replace(TINY, data=dataclasses.replace(TINY.data, train=()))
+    with pytest.raises(ConfigError, match=r"data.train: no sequence listed"):
+        train_run(empty, tmp_path / "empty", progress=False)
+    long = dataclasses.replace(TINY, train=dataclasses.replace(TINY.train, window=5000, every=50))
+    with pytest.raises(InputError, match=r"train.window = 5000 samples: no window .* in data.train: "
+                                         r"sim_drone_consumer_seed1 \(3200 samples, 3200 with ground truth\)"):
+        train_run(long, tmp_path / "long", progress=False)

@@ -96,7 +96,7 @@ class Table:
     def _data_lines(self) -> np.ndarray:
         """1-based file line number of every data row (computed on first use only: a full file scan)."""
         lines = []
-        with open(self.path, encoding="utf-8", errors="replace") as f:
+        with open(self.path, encoding="utf-8-sig", errors="replace") as f:
             for number, line in enumerate(f, start=1):
                 if number > self.skip_lines and _content(line, self.comments):
                     lines.append(number)
@@ -138,7 +138,7 @@ def _find_header(path: Path, delimiter: str | None, comments: str | None, header
     stripped first, as in EuRoC's ``#timestamp [ns],...``); a line mixing numbers and text is a malformed data
     row, reported as such rather than silently skipped as a header.
     """
-    with open(path, encoding="utf-8", errors="replace") as f:
+    with open(path, encoding="utf-8-sig", errors="replace") as f:
         for number, line in enumerate(f, start=1):
             text = line.strip()
             if not text:
@@ -159,7 +159,7 @@ def _first_bad_line(path: Path, skip: int, delimiter: str | None, comments: str 
     The usual width is the most common column count, so a truncated first row is still the one reported.
     """
     rows = []
-    with open(path, encoding="utf-8", errors="replace") as f:
+    with open(path, encoding="utf-8-sig", errors="replace") as f:
         for number, line in enumerate(f, start=1):
             text = _content(line, comments) if number > skip else ""
             if text:
@@ -203,7 +203,8 @@ def read_table(
     check_input_size(path, field)
     names, skip = _find_header(path, delimiter, comments, header)
     try:
-        data = np.loadtxt(path, delimiter=delimiter, comments=comments, skiprows=skip, ndmin=2, dtype=np.float64)
+        data = np.loadtxt(path, delimiter=delimiter, comments=comments, skiprows=skip, ndmin=2, dtype=np.float64,
+                          encoding="utf-8-sig")
     except ValueError as err:
         bad = _first_bad_line(path, skip, delimiter, comments)
         if bad is not None:
@@ -224,7 +225,7 @@ def read_table(
 def _parse_content_lines(path: Path, skip: int, delimiter: str | None, comments: str | None, field: str):
     """Parse only the lines with content. ``np.loadtxt`` refuses a line of white space or an indented comment as a
     row of one empty column, while the line scan (``_content``) skips them as blank: parse what the scan sees."""
-    with open(path, encoding="utf-8", errors="replace") as f:
+    with open(path, encoding="utf-8-sig", errors="replace") as f:
         lines = [line for number, line in enumerate(f, start=1) if number > skip and _content(line, comments)]
     if not lines:
         raise DataError(path, field, "no data rows")
@@ -235,7 +236,7 @@ def _parse_content_lines(path: Path, skip: int, delimiter: str | None, comments:
 
 
 def _first_line_number(path: Path, skip: int, comments: str | None) -> int | None:
-    with open(path, encoding="utf-8", errors="replace") as f:
+    with open(path, encoding="utf-8-sig", errors="replace") as f:
         for number, line in enumerate(f, start=1):
             if number > skip and _content(line, comments):
                 return number

@@ -203,3 +203,17 @@ def test_gps_fixes_take_a_scalar_sigma_and_refuse_a_wrong_shape():
     np.testing.assert_array_equal(GpsFixes(t, pos, np.arange(4.0)).sigma[:, 1], np.arange(4.0))
     with pytest.raises(InputError, match="sigma must be a float"):
         GpsFixes(t, pos, np.ones(5))
+
+
+def test_a_byte_order_mark_is_read_as_the_imu_readers_read_it(tmp_path):
+    """Spreadsheets save CSV with a UTF-8 byte-order mark: the GPS reader takes the header after it, and a table
+    without a header reads its first row."""
+    from learned_imu.datasets._table import read_table
+
+    gps = tmp_path / "gps.csv"
+    gps.write_bytes(b"\xef\xbb\xbft,x,y,z\n0,1,2,3\n1,1,2,4\n")
+    fixes = read_gps_csv(gps, sigma_m=1.0)
+    np.testing.assert_array_equal(fixes.t, [0.0, 1.0])
+    bare = tmp_path / "bare.csv"
+    bare.write_bytes(b"\xef\xbb\xbf0,1,2,3\n1,1,2,3\n")
+    np.testing.assert_array_equal(read_table(bare).data[:, 0], [0.0, 1.0])

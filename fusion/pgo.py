@@ -165,7 +165,8 @@ def gps_for(
         truth = GpsFixes(sequence.t, sequence.gt.pos, np.zeros((len(sequence), 3)))
         return fuse, truth
     if sequence.gps is None:
-        raise InputError(f"{sequence.name}: PGO needs ground truth or GPS fixes")
+        raise InputError(f"{sequence.name}: PGO needs ground truth or GPS fixes, and the sequence was read with "
+                         "neither (a reader's gps_file or gps_topic option, or its ground-truth file)")  # fmt: skip
     fixes = sequence.gps
     step = recorded_phases(sequence, rate_hz)
     keep = np.arange(seed % step, len(fixes.t), step)
@@ -179,7 +180,9 @@ def gps_for(
 def recorded_phases(sequence: ImuSequence, rate_hz: float) -> int:
     """How many recorded fixes there are per fused fix at ``rate_hz``: the number of distinct decimations."""
     if sequence.gps is None or len(sequence.gps.t) < 2:
-        raise InputError(f"{sequence.name}: PGO needs ground truth or GPS fixes")
+        count = 0 if sequence.gps is None else len(sequence.gps.t)
+        raise InputError(f"{sequence.name}: PGO on recorded GPS needs at least two fixes in the IMU's time span, "
+                         f"the sequence has {count}")  # fmt: skip
     return max(1, int(round(1.0 / (rate_hz * float(np.median(np.diff(sequence.gps.t)))))))
 
 

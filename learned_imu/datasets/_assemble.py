@@ -235,6 +235,7 @@ def build_sequence(
     line_of: Callable[[int], int | None] | None = None,
     frame_interval_s: float = _checks.GYRO_INTERVAL_S,
     max_gt_distance_s: float | None = None,
+    gps_source: object = None,
 ) -> ImuSequence:
     """Checked sequence from IMU arrays (time stamps already strictly increasing) and optional raw GT.
 
@@ -244,6 +245,7 @@ def build_sequence(
         line_of: maps an index of the given arrays to its file line, for error messages.
         frame_interval_s: the frame self-check's gyro interval (``_checks.frame_score``).
         max_gt_distance_s: see ``resample_ground_truth``.
+        gps_source: the GPS file, for error messages (default ``source``).
     Returns:
         The checked ``ImuSequence``.
     """
@@ -276,7 +278,7 @@ def build_sequence(
             t, gyro, acc, truth.rot, truth.valid, gravity, source, gt.source, truth.vel, frame_interval_s,
             pos=truth.pos, vel_given=gt.vel is not None,
         )  # fmt: skip
-    return _make(name, source, t, gyro, acc, gravity, truth, gps, slice(None))
+    return _make(name, source, t, gyro, acc, gravity, truth, gps, slice(None), gps_source)
 
 
 def _overlap_rows(t: np.ndarray, gt: GtSamples, crop: bool) -> np.ndarray:
@@ -300,12 +302,18 @@ def _overlap_rows(t: np.ndarray, gt: GtSamples, crop: bool) -> np.ndarray:
     return rows
 
 
-def _make(name, source, t, gyro, acc, gravity, truth, gps, part: slice) -> ImuSequence:
+def _make(name, source, t, gyro, acc, gravity, truth, gps, part: slice, gps_source=None) -> ImuSequence:
     t = t[part]
     if truth is not None:
         truth = GroundTruth(truth.rot[part], truth.pos[part], truth.vel[part], truth.valid[part])
     if gps is not None:
         inside = (gps.t >= t[0]) & (gps.t <= t[-1])
+        if len(gps.t) and not inside.any():
+            raise DataError(
+                gps_source or source, "gps",
+                f"none of the {len(gps.t)} GPS fixes, [{float(gps.t[0])!r}, {float(gps.t[-1])!r}] s, lies within the "
+                f"IMU's time span [{float(t[0])!r}, {float(t[-1])!r}] s (another clock or time unit?)",
+            )  # fmt: skip
         gps = gps[inside]
     return ImuSequence(
         name=name, t=t, gyro=gyro[part], acc=acc[part], gravity=gravity.copy(), gt=truth, gps=gps, source=str(source)

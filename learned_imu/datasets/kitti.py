@@ -81,6 +81,7 @@ def read_kitti(
         gps=gps,
         checks=checks,
         line_of=lambda row: table.line_of(int(keep[row])),
+        gps_source=_locate(path, gps_file) if gps_file is not None else None,
     )
 
 

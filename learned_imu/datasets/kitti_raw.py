@@ -136,6 +136,7 @@ def read_kitti_raw(
         checks=checks,
         line_of=lambda row: line_of(int(keep[row])),
         frame_interval_s=FRAME_INTERVAL_S,
+        gps_source=gps_path if gps_file is not None else None,
     )
 
 

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from learned_imu.datasets import ReadChecks
+from learned_imu.datasets import ReadChecks, read_sequence
 from learned_imu.datasets.kitti import GPS_SIGMA, read_kitti
 from learned_imu.errors import DataError
 
@@ -89,3 +89,16 @@ def test_module_does_not_import_gtsam():
     code = "import sys, learned_imu.datasets; print('gtsam' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout
     assert out.strip() == "False"
+
+
+def test_gps_fixes_all_outside_the_imu_span_name_the_file_and_both_spans(shared_data, tmp_path):
+    source = shared_data / "kitti_gtsam"
+    for name in ("KittiEquivBiasedImu.txt", "KittiEquivBiasedImu_metadata.txt"):
+        (tmp_path / name).symlink_to(source / name)
+    lines = (source / "KittiGps_converted.txt").read_text().splitlines()
+    shifted = [lines[0]] + [",".join([repr(float(x.split(",")[0]) + 1e5), *x.split(",")[1:]]) for x in lines[1:]]
+    (tmp_path / "KittiGps_converted.txt").write_text("\n".join(shifted) + "\n")  # a clock 1e5 s off
+    with pytest.raises(DataError, match=r"KittiGps_converted.txt: field 'gps': none of the 470 GPS fixes, "
+                                        r"\[146534.4\d+, 147005.3\d+\] s, lies within the IMU's time span "
+                                        r"\[46536.3\d+, 47006.0\d+\] s"):  # fmt: skip
+        read_sequence("kitti", tmp_path)

@@ -145,6 +145,11 @@ def keyframes_from_spec(sequence: ImuSequence, spec: str) -> np.ndarray:
             raise InputError(f"keyframes: expected an interval like '0.1s' or a file of times, got {spec!r}") from None
         if not (np.isfinite(interval) and interval > 0):
             raise InputError(f"keyframes: interval must be positive, got {spec!r}")
+        span = float(sequence.t[-1] - sequence.t[0])
+        if interval > span:
+            hint = " (milliseconds given as seconds?)" if interval / 1000.0 <= span else ""
+            raise InputError(f"--keyframes {spec}: the interval is longer than the recording, {span:.4g} s "
+                             f"({len(sequence)} samples): at least two keyframes are needed{hint}")  # fmt: skip
         return keyframes_every(sequence, interval)
     path = Path(spec)
     if not path.is_file():
@@ -157,7 +162,11 @@ def keyframes_from_spec(sequence: ImuSequence, spec: str) -> np.ndarray:
         raise DataError(path, "time", "expected finite, strictly increasing times in seconds, one per line")
     index, on_sample = nearest_samples(sequence, times)
     if not on_sample.all():
-        raise DataError(path, "time", f"time {times[~on_sample][0]} s lies outside the IMU samples of {sequence.name}")
+        t0, t1 = float(sequence.t[0]), float(sequence.t[-1])
+        raise DataError(path, "time", f"time {times[~on_sample][0]!r} s lies outside the IMU samples of "
+                        f"{sequence.name} ([{t0!r}, {t1!r}] s, or in a gap; times in ns or on another clock?)")
+    if len(index) < 2:
+        raise DataError(path, "time", f"{len(index)} keyframe time(s): at least two are needed")
     return index
 
 

@@ -92,6 +92,9 @@ CLI_CASES = {
     "keyframes 0s": (["export", "--dataset", "csv", "--path", "{imu_only}", "--out", "{tmp}/e.npz", "--keyframes",
                       "0s", "--gyro-noise-density", "0.004", "--acc-noise-density", "0.08", *reader_options(CSV_KEYS)],
                      "keyframes: interval must be positive"),  # fmt: skip
+    "keyframes 5000s": (["export", "--dataset", "csv", "--path", "{imu_only}", "--out", "{tmp}/e.npz", "--keyframes",
+                         "5000s", "--gyro-noise-density", "0.004", "--acc-noise-density", "0.08",
+                         *reader_options(CSV_KEYS)], "--keyframes 5000s: the interval is longer than the recording"),
     "keyframes abc": (["export", "--dataset", "csv", "--path", "{imu_only}", "--out", "{tmp}/e.npz", "--keyframes",
                        "abc", "--gyro-noise-density", "0.004", "--acc-noise-density", "0.08",
                        *reader_options(CSV_KEYS)], "'abc' is neither"),  # fmt: skip

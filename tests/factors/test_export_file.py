@@ -142,3 +142,22 @@ def test_the_export_takes_a_correction(sequence, tmp_path):
         np.testing.assert_array_equal(getattr(by_record, field), getattr(by_arrays, field))
     with pytest.raises(InputError, match="not both"):
         export_preintegration(tmp_path / "x.npz", sequence, index, 1e-6, 1e-4, correction=correction)
+
+
+def test_keyframe_specs_that_cannot_give_two_keyframes_name_the_recording(tmp_path):
+    from learned_imu.datasets.simulator import simulate
+    from learned_imu.errors import DataError, InputError
+    from learned_imu.export import keyframes_from_spec
+
+    seq = simulate("drone", duration_s=10.0, seed=0)
+    assert len(keyframes_from_spec(seq, "1s")) == 10
+    with pytest.raises(InputError, match=r"--keyframes 500s: the interval is longer than the recording, 9.995 s "
+                                         r"\(2000 samples\).*milliseconds given as seconds\?"):  # fmt: skip
+        keyframes_from_spec(seq, "500s")
+    times = tmp_path / "times.txt"
+    times.write_text("\n".join(str(int(t * 1e9)) for t in seq.t[::200]) + "\n")  # ns, not s
+    with pytest.raises(DataError, match=r"lies outside the IMU samples of .*times in ns or on another clock"):
+        keyframes_from_spec(seq, str(times))
+    times.write_text(f"{seq.t[100]!r}\n")
+    with pytest.raises(DataError, match="1 keyframe time"):
+        keyframes_from_spec(seq, str(times))

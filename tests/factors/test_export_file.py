@@ -158,6 +158,6 @@ def test_keyframe_specs_that_cannot_give_two_keyframes_name_the_recording(tmp_pa
     times.write_text("\n".join(str(int(t * 1e9)) for t in seq.t[::200]) + "\n")  # ns, not s
     with pytest.raises(DataError, match=r"lies outside the IMU samples of .*times in ns or on another clock"):
         keyframes_from_spec(seq, str(times))
-    times.write_text(f"{seq.t[100]!r}\n")
+    times.write_text(f"{float(seq.t[100])!r}\n")
     with pytest.raises(DataError, match="1 keyframe time"):
         keyframes_from_spec(seq, str(times))

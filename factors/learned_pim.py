@@ -26,6 +26,7 @@ import gtsam
 import numpy as np
 
 from factors.noise import noise_mismatch
+from learned_imu.errors import InputError, real_array
 
 # an IMU on Earth measures about g of specific force; a median below this over an interval (not a brief free fall)
 # means the samples are not m/s^2 of specific force (swapped with the gyro, or in g)
@@ -132,7 +133,7 @@ def _checked(gyro, acc, dt, gyro_cov, acc_cov):
     n = len(gyro)
     if acc.shape != gyro.shape:
         raise ValueError(f"learned_pim: gyro {gyro.shape} and acc {acc.shape} must both be (N, 3)")
-    dt = np.broadcast_to(np.asarray(dt, dtype=float), (n,))
+    dt = np.broadcast_to(real_array(dt, "learned_pim: dt"), (n,))
     if not np.all(np.isfinite(dt)) or np.any(dt <= 0):
         raise ValueError("learned_pim: dt must be positive and finite for every sample")
     if float(np.median(dt)) > MAX_MEDIAN_DT_S:
@@ -157,7 +158,7 @@ def _checked(gyro, acc, dt, gyro_cov, acc_cov):
 
 
 def _samples(name: str, value) -> np.ndarray:
-    out = np.asarray(value, dtype=float)
+    out = real_array(value, f"learned_pim: {name}")
     if out.ndim != 2 or out.shape[1] != 3 or len(out) == 0:
         raise ValueError(f"learned_pim: {name} must be (N, 3) with N >= 1, got shape {out.shape}")
     if not np.all(np.isfinite(out)):
@@ -167,7 +168,9 @@ def _samples(name: str, value) -> np.ndarray:
 
 def _densities(name: str, value, n: int) -> np.ndarray:
     try:
-        out = np.broadcast_to(np.asarray(value, dtype=float), (n, 3))
+        out = np.broadcast_to(real_array(value, f"learned_pim: {name}"), (n, 3))
+    except InputError:
+        raise
     except ValueError:
         raise ValueError(f"learned_pim: {name} must be a float, (3,) or (N, 3); got {np.shape(value)}") from None
     if not np.all(np.isfinite(out)) or np.any(out <= 0):

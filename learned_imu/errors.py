@@ -33,3 +33,29 @@ class DependencyError(AirImuError, ImportError):
 
 class FolderBusyError(AirImuError, RuntimeError):
     """Another process is writing the same run folder; the message names the folder and that process."""
+
+
+def real_array(value, name: str):
+    """``value`` as a float64 numpy array, or an ``InputError`` naming ``name`` when it is not an array of real
+    numbers: ragged nested lists (numpy's "setting an array element with a sequence"), text, or complex numbers
+    (which ``np.asarray(..., dtype=float)`` would cast to their real part with only a warning)."""
+    import numpy as np
+
+    if isinstance(value, complex) or (isinstance(value, list | tuple) and _has_complex(value)):
+        raise InputError(f"{name}: expected real numbers, got complex values")
+    if isinstance(value, np.ndarray) and np.iscomplexobj(value):
+        raise InputError(f"{name}: expected real numbers, got complex values")
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (ValueError, TypeError) as error:
+        problem = "a ragged nesting (rows of different lengths)" if "inhomogeneous" in str(error) else repr(value)[:60]
+        raise InputError(f"{name}: expected an array of real numbers, got {problem}") from None
+
+
+def _has_complex(items, depth: int = 0) -> bool:
+    if depth > 3:
+        return False
+    for item in items:
+        if isinstance(item, complex) or (isinstance(item, list | tuple) and _has_complex(item, depth + 1)):
+            return True
+    return False

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from learned_imu.errors import DataError, InputError
+from learned_imu.errors import DataError, InputError, real_array
 
 MAX_GAP_STEPS = 5.0  # a time step longer than this many median steps is a gap
 
@@ -76,10 +76,10 @@ class GpsFixes:
     sigma: np.ndarray
 
     def __post_init__(self):
-        t, pos = np.asarray(self.t, dtype=float), np.asarray(self.pos, dtype=float)
+        t, pos = real_array(self.t, "GpsFixes.t"), real_array(self.pos, "GpsFixes.pos")
         if t.ndim != 1 or pos.shape != (len(t), 3):
             raise InputError(f"GpsFixes: t must be (M,) and pos (M, 3); got {t.shape} and {pos.shape}")
-        sigma = np.asarray(self.sigma, dtype=float)
+        sigma = real_array(self.sigma, "GpsFixes.sigma")
         if sigma.shape == (len(t),) and sigma.shape != (3,):
             sigma = sigma[:, None]
         try:

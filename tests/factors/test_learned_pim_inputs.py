@@ -43,3 +43,27 @@ def test_a_time_step_slower_than_any_imu_is_refused(kitti):
     gaps = np.full(len(gyro), 0.01)
     gaps[100] = 5.0  # one real gap among 100 Hz samples: accepted
     learned_pim(gyro, acc, gaps, 1e-8, 1e-4, 9.8)
+
+
+def test_ragged_complex_or_text_inputs_are_refused_by_name_not_by_numpy():
+    """numpy would say "setting an array element with a sequence", or cast complex numbers to their real part
+    with a warning: the factor API and GpsFixes name the argument instead."""
+    from learned_imu.datasets.sequence import GpsFixes
+    from learned_imu.errors import InputError
+
+    gyro, acc = [[0.0, 0.0, 0.0]] * 2, [[0.0, 0.0, 9.8]] * 2
+    cases = [
+        (lambda: learned_pim([[0.0, 0.0, 0.0], [0.0, 0.0]], acc, 0.005, 1e-4, 1e-3, gravity_m_s2=9.81),
+         "learned_pim: gyro: expected an array of real numbers, got a ragged nesting"),
+        (lambda: learned_pim(gyro, acc, 0.005 + 0j, 1e-4, 1e-3, gravity_m_s2=9.81),
+         "learned_pim: dt: expected real numbers, got complex values"),
+        (lambda: learned_pim(gyro, acc, 0.005, "1e-4 rad", 1e-3, gravity_m_s2=9.81),
+         "learned_pim: gyro_cov: expected an array of real numbers"),
+        (lambda: GpsFixes(np.array([0.0, 1.0]), [[1, 2, 3], [1, 2]], 1.0),
+         "GpsFixes.pos: expected an array of real numbers, got a ragged nesting"),
+        (lambda: GpsFixes(np.array([0.0, 1.0]), np.zeros((2, 3)) + 1j, 1.0),
+         "GpsFixes.pos: expected real numbers, got complex values"),
+    ]  # fmt: skip
+    for build, message in cases:
+        with pytest.raises(InputError, match=message):
+            build()

@@ -65,9 +65,11 @@ def _run_pgo(config, out, json_out, csv_out, rrd, png, epochs, progress, data_ro
     from fusion.figures import plot
     from fusion.pgo import ablate_pgo as run
     from fusion.pgo import paper_ate, record, write_table
+    from learned_imu.io import folder_lock
 
     console = _wide_console()
-    results = run(config, out, progress=progress, data_root=data_root, epochs=epochs)
+    with folder_lock(out):  # one writer per folder: a second ablate-pgo into it is refused, naming this one
+        results = run(config, out, progress=progress, data_root=data_root, epochs=epochs)
     rows = [row for result in results for row in result.rows]
     quoted = any(paper_ate(r) is not None for r in rows)  # the paper's sequences: its ATE beside ours
     for sequence in dict.fromkeys(r.sequence for r in rows):  # one table per sequence: settings x GPS rates
@@ -175,8 +177,11 @@ def fuse(
 
         model = model_from_checkpoint(checkpoint)[0]
     states = BiasStates(1.67e-4, 2.91e-6, 0.1, 0.01, factor="combined") if bias else None  # CombinedImuFactor
-    result = fuse(sequence, used, model, keyframe_s=keyframe_s, bias=states, noise_density=noise)
-    summary, written = write_outputs(result, Path(out), reference=fixes)
+    from learned_imu.io import folder_lock
+
+    with folder_lock(out):  # one writer per folder from here on: a second fuse into it is refused, naming this one
+        result = fuse(sequence, used, model, keyframe_s=keyframe_s, bias=states, noise_density=noise)
+        summary, written = write_outputs(result, Path(out), reference=fixes)
     console = _wide_console()
     console.print(
         f"fused {len(result.gps.t)} fixes over {len(result.solution.trajectory.t)} keyframes of {sequence.name}: "

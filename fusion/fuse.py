@@ -285,7 +285,10 @@ def write_outputs(result: Fused, folder: Path, reference: GpsFixes | None = None
     from learned_imu.evaluation.metrics import ate_m
     from learned_imu.io import atomic_file, output_folder, write_json_atomic
 
-    output_folder(folder)
+    folder = output_folder(folder)
+    # summary.json is written last and marks a complete folder: a previous run's goes first, so that a rerun
+    # killed half-way never leaves a folder that looks complete with some files of each run
+    (folder / "summary.json").unlink(missing_ok=True)
     trajectory = with_marginals(result.solution)
     dense = imu_rate_trajectory(result)
     written = [trajectory.write_tum(folder / "fused.tum"), dense.write_tum(folder / "fused_imu_rate.tum")]

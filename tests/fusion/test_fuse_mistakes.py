@@ -217,3 +217,16 @@ def test_a_byte_order_mark_is_read_as_the_imu_readers_read_it(tmp_path):
     bare = tmp_path / "bare.csv"
     bare.write_bytes(b"\xef\xbb\xbf0,1,2,3\n1,1,2,3\n")
     np.testing.assert_array_equal(read_table(bare).data[:, 0], [0.0, 1.0])
+
+
+def test_a_second_fuse_into_a_folder_being_written_is_refused_naming_the_writer(shared_data, capsys, monkeypatch,
+                                                                                 tmp_path):
+    from learned_imu.io import folder_lock
+
+    out = tmp_path / "f"
+    with folder_lock(out):  # another airimu fuse (or train, ablate-pgo) writing there
+        code, err = run(capsys, monkeypatch, "fuse", "--dataset", "kitti_raw", "--path", shared_data / DRIVE, *REPAIR,
+                        "--gps", shared_data / "kitti_gtsam" / "KittiGps_converted.txt", "--gps-every", "10",
+                        "--keyframes", "1s", "--out", out)  # fmt: skip
+    assert code != 0 and "another writer holds it" in err and str(out) in err
+    assert not (out / "summary.json").exists()

@@ -54,10 +54,11 @@ def commands(work: Path) -> dict:
     (work / "kill.yaml").write_text(TRAIN_YAML)
     (work / "kill_long.yaml").write_text(TRAIN_YAML.replace("epochs: 6", "epochs: 60"))  # for the second-writer test
     (work / "pgo_model.yaml").write_text(TRAIN_YAML.replace("epochs: 6", "epochs: 2"))
-    (work / "pgo.yaml").write_text(
-        f"name: kill_pgo\nexperiment: pgo_model.yaml\nrun: {work / 'pgo_model'}\n"
-        "options: {gps_hz: [1.0], seeds: 2, keyframe_interval_s: 0.2}\n"
-    )
+    for name, seeds in (("pgo.yaml", 2), ("pgo_long.yaml", 40)):  # pgo_long: for the second-writer test
+        (work / name).write_text(
+            f"name: kill_pgo\nexperiment: pgo_model.yaml\nrun: {work / 'pgo_model'}\n"
+            f"options: {{gps_hz: [1.0], seeds: {seeds}, keyframe_interval_s: 0.2}}\n"
+        )
     return {
         "train": (lambda out, config="kill.yaml": [AIRIMU, "train", "--config", str(work / config), "--out", str(out),
                                                    "--no-progress"], check_train),  # fmt: skip
@@ -65,8 +66,9 @@ def commands(work: Path) -> dict:
                                 "--out", str(out / "e.npz"), "--keyframes", "1s", "--gyro-noise-density", "1.7e-4",
                                 "--acc-noise-density", "2e-3"], check_export),  # fmt: skip
         "fuse": (lambda out: [AIRIMU, "fuse", *KITTI, "--out", str(out)], check_fuse),
-        "ablate-pgo": (lambda out: [AIRIMU, "ablate-pgo", "--config", str(work / "pgo.yaml"), "--out", str(out),
-                                    "--json", str(out / "table.json"), "--no-progress"], check_pgo),  # fmt: skip
+        "ablate-pgo": (lambda out, config="pgo.yaml": [AIRIMU, "ablate-pgo", "--config", str(work / config), "--out",
+                                                       str(out), "--json", str(out / "table.json"), "--no-progress"],
+                       check_pgo),  # fmt: skip
     }
 
 
@@ -180,7 +182,8 @@ def main() -> int:
                 proc.kill()  # SIGKILL
                 stdout = proc.communicate()[0] or ""
                 problems += [f"kill {k}: {p}" for p in check(out, stdout, argv)]
-            busy = functools.partial(argv_of, config="kill_long.yaml") if name == "train" else argv_of
+            longer = {"train": "kill_long.yaml", "ablate-pgo": "pgo_long.yaml"}  # runs long enough to meet a second
+            busy = functools.partial(argv_of, config=longer[name]) if name in longer else argv_of
             lock = busy_refused(busy, work / f"{name}-busy") if name != "export" else None
             results[name] = {"kills": args.kills, "landed_before_the_end": landed, "uninterrupted_s": round(whole, 1),
                              "violations": problems, "second_writer_refused": lock}  # fmt: skip

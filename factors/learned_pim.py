@@ -26,7 +26,6 @@ import gtsam
 import numpy as np
 
 from factors.noise import noise_mismatch
-from learned_imu.errors import InputError, real_array
 
 # an IMU on Earth measures about g of specific force; a median below this over an interval (not a brief free fall)
 # means the samples are not m/s^2 of specific force (swapped with the gyro, or in g)
@@ -133,7 +132,7 @@ def _checked(gyro, acc, dt, gyro_cov, acc_cov):
     n = len(gyro)
     if acc.shape != gyro.shape:
         raise ValueError(f"learned_pim: gyro {gyro.shape} and acc {acc.shape} must both be (N, 3)")
-    dt = np.broadcast_to(real_array(dt, "learned_pim: dt"), (n,))
+    dt = np.broadcast_to(_real(dt, "learned_pim: dt"), (n,))
     if not np.all(np.isfinite(dt)) or np.any(dt <= 0):
         raise ValueError("learned_pim: dt must be positive and finite for every sample")
     if float(np.median(dt)) > MAX_MEDIAN_DT_S:
@@ -157,8 +156,26 @@ def _checked(gyro, acc, dt, gyro_cov, acc_cov):
     return gyro, acc, dt, *covs
 
 
+class _NotReal(ValueError):
+    """An argument that is not an array of real numbers (a ``ValueError``, as the module's other refusals)."""
+
+
+def _real(value, name: str) -> np.ndarray:
+    """``value`` as float64, or a ``_NotReal`` naming ``name`` for ragged nestings, text or complex numbers (numpy
+    would say "setting an array element with a sequence", or cast complex to its real part with a warning)."""
+    if isinstance(value, complex) or np.iscomplexobj(value if isinstance(value, np.ndarray) else 0.0):
+        raise _NotReal(f"{name}: expected real numbers, got complex values")
+    if isinstance(value, list | tuple) and any(isinstance(v, complex) for v in np.ravel(np.asarray(value, object))):
+        raise _NotReal(f"{name}: expected real numbers, got complex values")
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (ValueError, TypeError) as error:
+        problem = "a ragged nesting (rows of different lengths)" if "inhomogeneous" in str(error) else repr(value)[:60]
+        raise _NotReal(f"{name}: expected an array of real numbers, got {problem}") from None
+
+
 def _samples(name: str, value) -> np.ndarray:
-    out = real_array(value, f"learned_pim: {name}")
+    out = _real(value, f"learned_pim: {name}")
     if out.ndim != 2 or out.shape[1] != 3 or len(out) == 0:
         raise ValueError(f"learned_pim: {name} must be (N, 3) with N >= 1, got shape {out.shape}")
     if not np.all(np.isfinite(out)):
@@ -168,8 +185,8 @@ def _samples(name: str, value) -> np.ndarray:
 
 def _densities(name: str, value, n: int) -> np.ndarray:
     try:
-        out = np.broadcast_to(real_array(value, f"learned_pim: {name}"), (n, 3))
-    except InputError:
+        out = np.broadcast_to(_real(value, f"learned_pim: {name}"), (n, 3))
+    except _NotReal:
         raise
     except ValueError:
         raise ValueError(f"learned_pim: {name} must be a float, (3,) or (N, 3); got {np.shape(value)}") from None

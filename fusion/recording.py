@@ -23,7 +23,10 @@ visible, the others hidden, one click away) beside tabs of plots split by unit; 
 ``airimu view out.rrd`` opens the viewer.
 
 A training recording (``write_training_recording``, ``<run>/training.rrd``, rewritten after every epoch), time line
-``epoch``: ``loss`` (train and validation), ``val/roe_deg``, ``val/rpe_rmse_m``, ``lr``, ``seconds``.
+``epoch``: ``loss`` (train and validation; ``loss/best`` marks the epoch ``best.pt`` holds), ``val/roe_deg``,
+``val/rpe_rmse_m``, ``lr``, ``seconds``; ``description``, the run in a sentence. A fusion recording's
+``description`` names it and scores each setting (ATE against the ground truth), each track is labelled at its end
+(``.../end``), and the time panel opens paused with the whole run selected.
 """
 
 from __future__ import annotations
@@ -119,8 +122,40 @@ def write_recording(
         if imu is not None:
             _log_imu(rec, imu, plots)
         scene = truth.pos if truth is not None else (fused[0].pos if fused else np.zeros((1, 3)))
-        rec.send_blueprint(_blueprint(fused, colors.headline(names), plots, _eye(scene)), make_active=True)
+        rec.log("description", rr.TextDocument(_description(application, fused, truth, dead_reckoning, gps),
+                                               media_type=rr.MediaType.MARKDOWN), static=True)  # fmt: skip
+        span = _time_span(fused, gps)
+        rec.send_blueprint(_blueprint(fused, colors.headline(names), plots, _eye(scene), span), make_active=True)
     return path
+
+
+def _description(application: str, fused, truth, dead_reckoning, gps) -> str:
+    """The recording's text panel: what it is, its data and every setting with its ATE against the ground truth."""
+    lines = [f"# {application}", ""]
+    if fused:
+        t = fused[0].t
+        lines.append(f"{len(t)} keyframes over {float(t[-1] - t[0]):.1f} s; ground truth: {'yes' if truth else 'no'}; "
+                     f"GPS fixes fused: {0 if gps is None else len(gps[0])}.")  # fmt: skip
+    lines += ["", "| setting | ATE vs ground truth (m) |", "|---|---|"]
+    for track in fused:
+        error = None if truth is None else np.sqrt(np.mean(np.sum((track.pos - _at(truth, track.t)) ** 2, axis=1)))
+        ate = "-" if error is None else f"{float(error):.3f}"
+        lines.append(f"| {track.name} | {ate} |")
+    if dead_reckoning:
+        lines += ["", "Dead reckoning (own tab): " + ", ".join(t.name for t in dead_reckoning) + "."]
+    lines += ["", "3-D view: each setting's track is labelled at its end; the ellipsoids (3-sigma marginal position "
+              "covariance at the time cursor) are shown for the headline setting, the others' one click away in the "
+              "blueprint panel. Plots: position error against its 3-sigma bound per setting, and the IMU."]
+    return "\n".join(lines)
+
+
+def _time_span(fused, gps) -> tuple[int, int] | None:
+    """(first, last) time of the recording, ns, for the time panel's selection: it opens on the whole run."""
+    times = [t.t for t in fused] + ([gps[0]] if gps is not None else [])
+    if not times or not any(len(t) for t in times):
+        return None
+    first, last = min(float(t[0]) for t in times if len(t)), max(float(t[-1]) for t in times if len(t))
+    return int(round(first * 1e9)), int(round(last * 1e9))
 
 
 def _log_world(rec, fused, truth, dead_reckoning, gps, palette) -> None:
@@ -145,6 +180,8 @@ def _log_world(rec, fused, truth, dead_reckoning, gps, palette) -> None:
         _send(rec, f"{entity}/now", track.t, rr.Points3D.columns(positions=track.pos))
         rec.log(f"{entity}/now", rr.Points3D.from_fields(colors=color, radii=MARKER, labels=track.name,
                                                           show_labels=False), static=True)  # fmt: skip
+        rec.log(f"{entity}/end", rr.Points3D(track.pos[-1:], colors=color, radii=MARKER, labels=track.name,
+                                             show_labels=True), static=True)  # a name, not only a colour  # fmt: skip
         if track.pos_cov is not None:
             _send_ellipsoids(rec, f"{entity}/covariance", track, color)
     for track in dead_reckoning:
@@ -238,7 +275,9 @@ def _eye(pos: np.ndarray) -> rrb.EyeControls3D:
                              position=centre + extent * np.array([0.0, -0.75, 1.1]))  # fmt: skip
 
 
-def _blueprint(fused: list[Track], headline: str | None, plots: _Plots, eye: rrb.EyeControls3D) -> rrb.Blueprint:
+def _blueprint(
+    fused: list[Track], headline: str | None, plots: _Plots, eye: rrb.EyeControls3D, span: tuple[int, int] | None
+) -> rrb.Blueprint:
     hidden = {
         f"/world/fused/{_slug(t.name)}/covariance": rrb.EntityBehavior(visible=False)
         for t in fused
@@ -261,12 +300,15 @@ def _blueprint(fused: list[Track], headline: str | None, plots: _Plots, eye: rrb
                                  name="position error (m)"))  # fmt: skip
     units = {"gyro": "gyro (rad/s)", "acc": "acc (m/s²)"}
     tabs += [rrb.Vertical(*map(_view, views), name=units[sensor]) for sensor, views in plots.sensors.items()]
+    about = rrb.TextDocumentView(origin="/description", name="about this recording")
+    left = rrb.Vertical(about, left, row_shares=[1, 4])
     layout = rrb.Horizontal(left, rrb.Tabs(*tabs, active_tab=0), column_shares=[3, 2]) if tabs else left
+    selection = None if span is None else rr.encodings.AbsoluteTimeRange(*span)
     return rrb.Blueprint(
         layout,
         rrb.BlueprintPanel(state="expanded"),
         rrb.SelectionPanel(state="collapsed"),
-        rrb.TimePanel(state="expanded", timeline=TIMELINE),
+        rrb.TimePanel(state="expanded", timeline=TIMELINE, play_state="paused", time_selection=selection),
         auto_views=False,
     )
 
@@ -316,6 +358,16 @@ def write_training_recording(folder: str | Path, history: list[EpochLog]) -> Pat
                              columns=rr.Scalars.columns(scalars=values if len(keys) > 1 else values[:, 0]))  # fmt: skip
             views.append(rrb.TimeSeriesView(name=title, origin=f"/{entity}",
                                             plot_legend=rrb.PlotLegend(rrb.Corner2D[corner])))  # fmt: skip
+        if history and all("val_loss" in entry for entry in history):  # the epoch best.pt holds, marked
+            best = min(range(len(history)), key=lambda i: history[i]["val_loss"])
+            rec.log("loss/best", rr.SeriesPoints(names=["best epoch (best.pt)"], colors=[colors.GROUND_TRUTH],
+                                                 markers=["diamond"], marker_sizes=[8.0]), static=True)  # fmt: skip
+            rec.set_time("epoch", sequence=int(epochs[best]))
+            rec.log("loss/best", rr.Scalars(history[best]["val_loss"]))
+            summary = (f"# training\n\n{len(history)} epochs; best validation loss {history[best]['val_loss']:.5g} at "
+                       f"epoch {int(epochs[best])} (1 = the first): the weights best.pt holds.")  # fmt: skip
+            rec.log("description", rr.TextDocument(summary, media_type=rr.MediaType.MARKDOWN), static=True)
+            views.insert(0, rrb.TextDocumentView(origin="/description", name="about this run"))
         panels = (rrb.BlueprintPanel(state="expanded"), rrb.SelectionPanel(state="collapsed"),
                   rrb.TimePanel(state="collapsed", timeline="epoch"))  # fmt: skip
         blueprint = rrb.Blueprint(rrb.Grid(*views), *panels, auto_views=False)

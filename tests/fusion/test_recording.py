@@ -3,6 +3,7 @@ colours and values (small synthetic tracks; ``tests/fusion/test_pgo.py`` reads o
 
 from __future__ import annotations
 
+import re
 from collections import defaultdict
 
 import numpy as np
@@ -212,3 +213,37 @@ def test_training_is_drawn_in_rerun_and_logged_one_line_per_epoch(tmp_path, caps
     np.testing.assert_allclose(roe, [h["val_roe_deg"] for h in history])
     views = _views(_entities(tmp_path / "run" / "training.rrd", blueprint=True))
     assert {"loss", "validation ROE (deg)", "validation RPE RMSE (m)", "learning rate"} <= set(views)
+
+
+def test_the_recording_explains_itself(recording):
+    """A text panel says what the recording is and scores every setting; each track is labelled at its end (told
+    apart without colour); the time panel opens paused on the whole run, not at the last keyframe."""
+    path, t = recording
+    entities = _entities(path)
+    text = entities["/description"]["TextDocument:text"][-1][0]
+    for i, name in enumerate(SETTINGS):
+        assert f"| {name} | {0.01 * (i + 1):.3f} |" in text  # its constant offset from the truth is its ATE
+    assert "101 keyframes over 10.0 s; ground truth: yes; GPS fixes fused: 11" in text
+    for name in SETTINGS:
+        slug = re.sub(r"[^a-z0-9]+", "_", name.lower()).strip("_")
+        end = entities[f"/world/fused/{slug}/end"]
+        assert end["Points3D:labels"][-1] == [name] and end["Points3D:show_labels"][-1] == [True]
+    blueprint = _entities(path, blueprint=True)
+    assert _views(blueprint)["about this recording"]["class"] == "TextDocument"
+    selection = blueprint["/time_panel"]["TimePanelBlueprint:time_selection"][-1][0]
+    assert (selection["min"], selection["max"]) == (0, int(round(t[-1] * 1e9)))
+
+
+def test_the_training_recording_marks_the_epoch_best_pt_holds(tmp_path):
+    from fusion.recording import write_training_recording
+    from learned_imu.training.train import EpochLog
+
+    losses = [0.9, 0.5, 0.3, 0.35, 0.4]
+    history = [EpochLog(i, 1.0 - 0.1 * i, v, 1e-3, seconds=float(i)) for i, v in enumerate(losses)]
+    path = write_training_recording(tmp_path, history)
+    entities = _entities(path)
+    assert np.ravel(entities["/loss/best"]["Scalars:scalars"]).tolist() == [0.3]
+    assert entities["/loss/best"]["SeriesPoints:names"] == [["best epoch (best.pt)"]]
+    text = entities["/description"]["TextDocument:text"][-1][0]
+    assert "5 epochs; best validation loss 0.3 at epoch 3" in text
+    assert "about this run" in _views(_entities(path, blueprint=True))

@@ -215,6 +215,11 @@ def _log_errors(rec, fused, truth, dead_reckoning, palette, plots: _Plots) -> No
             mine.include(bound)
         if mine.entities:
             plots.error.append(mine)
+    per_setting = [p for p in plots.error if p.title != "position error, all settings (m)"]
+    if per_setting:  # comparable plots share one y range
+        lo, hi = min(p.lo for p in per_setting), max(p.hi for p in per_setting)
+        for plot in per_setting:
+            plot.lo, plot.hi = lo, hi
     if truth is not None and dead_reckoning:
         drift = _Plot("dead-reckoning drift from ground truth (m)", [])
         for track in dead_reckoning:

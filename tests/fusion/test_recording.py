@@ -247,3 +247,14 @@ def test_the_training_recording_marks_the_epoch_best_pt_holds(tmp_path):
     text = entities["/description"]["TextDocument:text"][-1][0]
     assert "5 epochs; best validation loss 0.3 at epoch 3" in text
     assert "about this run" in _views(_entities(path, blueprint=True))
+
+
+def test_the_per_setting_error_plots_share_one_y_range(recording):
+    path, _ = recording
+    blueprint = _entities(path, blueprint=True)
+    ranges = {}
+    for view, columns in blueprint.items():
+        name = columns.get("ViewBlueprint:display_name", [[None]])[-1][0]
+        if name in {f"{s} (m)" for s in SETTINGS}:
+            ranges[name] = tuple(blueprint[f"{view}/ScalarAxis"]["ScalarAxis:range"][-1][0])
+    assert len(ranges) == 4 and len(set(ranges.values())) == 1, ranges

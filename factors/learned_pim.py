@@ -162,16 +162,18 @@ class _NotReal(ValueError):
 
 def _real(value, name: str) -> np.ndarray:
     """``value`` as float64, or a ``_NotReal`` naming ``name`` for ragged nestings, text or complex numbers (numpy
-    would say "setting an array element with a sequence", or cast complex to its real part with a warning)."""
-    if isinstance(value, complex) or np.iscomplexobj(value if isinstance(value, np.ndarray) else 0.0):
-        raise _NotReal(f"{name}: expected real numbers, got complex values")
-    if isinstance(value, list | tuple) and any(isinstance(v, complex) for v in np.ravel(np.asarray(value, object))):
-        raise _NotReal(f"{name}: expected real numbers, got complex values")
+    would say "setting an array element with a sequence", or cast complex to its real part with a warning). The
+    twin of ``learned_imu.errors.real_array``, which this package may not import."""
     try:
-        return np.asarray(value, dtype=np.float64)
-    except (ValueError, TypeError) as error:
-        problem = "a ragged nesting (rows of different lengths)" if "inhomogeneous" in str(error) else repr(value)[:60]
-        raise _NotReal(f"{name}: expected an array of real numbers, got {problem}") from None
+        array = np.asarray(value)  # numpy's own dtype: complex stays complex, text stays text
+    except ValueError:
+        raise _NotReal(f"{name}: expected an array of real numbers, got a ragged nesting (rows of different "
+                       "lengths)") from None  # fmt: skip
+    if np.iscomplexobj(array):
+        raise _NotReal(f"{name}: expected real numbers, got complex values")
+    if not (np.issubdtype(array.dtype, np.number) or array.dtype == bool):
+        raise _NotReal(f"{name}: expected an array of real numbers, got {repr(value)[:60]}")
+    return array.astype(np.float64)
 
 
 def _samples(name: str, value) -> np.ndarray:

@@ -38,24 +38,17 @@ class FolderBusyError(AirImuError, RuntimeError):
 def real_array(value, name: str):
     """``value`` as a float64 numpy array, or an ``InputError`` naming ``name`` when it is not an array of real
     numbers: ragged nested lists (numpy's "setting an array element with a sequence"), text, or complex numbers
-    (which ``np.asarray(..., dtype=float)`` would cast to their real part with only a warning)."""
+    (which ``np.asarray(..., dtype=float)`` would cast to their real part with only a warning). Its twin, for the
+    factors package (which may not import this one), is ``factors.learned_pim._real``."""
     import numpy as np
 
-    if isinstance(value, complex) or (isinstance(value, list | tuple) and _has_complex(value)):
-        raise InputError(f"{name}: expected real numbers, got complex values")
-    if isinstance(value, np.ndarray) and np.iscomplexobj(value):
-        raise InputError(f"{name}: expected real numbers, got complex values")
     try:
-        return np.asarray(value, dtype=np.float64)
-    except (ValueError, TypeError) as error:
-        problem = "a ragged nesting (rows of different lengths)" if "inhomogeneous" in str(error) else repr(value)[:60]
-        raise InputError(f"{name}: expected an array of real numbers, got {problem}") from None
-
-
-def _has_complex(items, depth: int = 0) -> bool:
-    if depth > 3:
-        return False
-    for item in items:
-        if isinstance(item, complex) or (isinstance(item, list | tuple) and _has_complex(item, depth + 1)):
-            return True
-    return False
+        array = np.asarray(value)  # numpy's own dtype: complex stays complex, text stays text
+    except ValueError:
+        raise InputError(f"{name}: expected an array of real numbers, got a ragged nesting (rows of different "
+                         "lengths)") from None  # fmt: skip
+    if np.iscomplexobj(array):
+        raise InputError(f"{name}: expected real numbers, got complex values")
+    if not (np.issubdtype(array.dtype, np.number) or array.dtype == bool):
+        raise InputError(f"{name}: expected an array of real numbers, got {repr(value)[:60]}")
+    return array.astype(np.float64)

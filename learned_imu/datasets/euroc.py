@@ -22,6 +22,8 @@ Conventions:
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -68,17 +70,7 @@ def read_euroc(
     if not root.is_dir():
         raise DataError(root, "path", "not a directory (expected a EuRoC sequence folder holding mav0/)")
     imu_path = resolve(root, imu_file or IMU_FILE)
-    if not imu_path.is_file():
-        folder = imu_path.parent
-        there = sorted(p.name for p in folder.iterdir()) if folder.is_dir() else []
-        raise DataError(
-            imu_path, "imu_file", f"IMU file not found (files in {folder}: {there or 'none'}; pass imu_file=...)"
-        )
-    table = read_table(imu_path, delimiter=",", min_columns=7, field="imu")
-    raw = table.data[:, :7]
-    table.require_finite(raw, "imu")
-    keep = check_timestamps(raw[:, 0] * NS, imu_path, "t", on_duplicate=checks.on_duplicate, line_of=table.line_of)
-    raw = raw[keep]
+    imu = read_asl_imu(imu_path, checks.on_duplicate)
     gt = None
     if ground_truth:
         gt_path = (
@@ -93,16 +85,34 @@ def read_euroc(
             log.warning("%s: no ground truth read: the folder holds %s, not %s (pass gt_file=...)", root / GT_DIR,
                         there or "nothing", " or ".join(f.name for f in GT_FILES))  # fmt: skip
     return build_sequence(
-        root.name,
-        imu_path,
-        raw[:, 0] * NS,
-        raw[:, 1:4],
-        raw[:, 4:7],
-        np.array([0.0, 0.0, -gravity]),
-        gt=gt,
-        checks=checks,
-        line_of=lambda row: table.line_of(int(keep[row])),
-    )
+        root.name, imu_path, imu.t, imu.gyro, imu.acc, np.array([0.0, 0.0, -gravity]), gt=gt, checks=checks,
+        line_of=imu.line_of,
+    )  # fmt: skip
+
+
+@dataclass(frozen=True, eq=False)
+class AslImu:
+    """An ASL ``imu0/data.csv`` as read: time (N,) s, gyro and acc (N, 3), and the file line of each sample."""
+
+    t: np.ndarray
+    gyro: np.ndarray
+    acc: np.ndarray
+    line_of: Callable[[int], int | None]
+
+
+def read_asl_imu(path: Path, on_duplicate: OnDuplicate = "error", hint: str = "pass imu_file=...") -> AslImu:
+    """``t [ns], gyro (3), acc (3)`` rows of an ASL IMU csv (EuRoC, TUM-VI), finite, time stamps checked; a
+    missing file names the files beside it and ``hint``."""
+    if not path.is_file():
+        folder = path.parent
+        there = sorted(p.name for p in folder.iterdir()) if folder.is_dir() else []
+        raise DataError(path, "imu_file", f"IMU file not found (files in {folder}: {there or 'none'}; {hint})")
+    table = read_table(path, delimiter=",", min_columns=7, field="imu")
+    raw = table.data[:, :7]
+    table.require_finite(raw, "imu")
+    keep = check_timestamps(raw[:, 0] * NS, path, "t", on_duplicate=on_duplicate, line_of=table.line_of)
+    raw = raw[keep]
+    return AslImu(raw[:, 0] * NS, raw[:, 1:4], raw[:, 4:7], lambda row: table.line_of(int(keep[row])))
 
 
 def read_euroc_ground_truth(path: str | Path, *, on_duplicate: OnDuplicate = "error") -> GtSamples:

@@ -35,9 +35,7 @@ from typing import Literal
 import numpy as np
 
 from learned_imu.datasets._assemble import VEL_WINDOW_S, ReadChecks, build_sequence, resolve
-from learned_imu.datasets._checks import check_timestamps
-from learned_imu.datasets._table import read_table
-from learned_imu.datasets.euroc import GRAVITY, NS, read_euroc_ground_truth
+from learned_imu.datasets.euroc import GRAVITY, read_asl_imu, read_euroc_ground_truth
 from learned_imu.datasets.sequence import ImuSequence
 from learned_imu.errors import DataError
 
@@ -71,7 +69,8 @@ def read_tumvi(
         gravity: magnitude of gravity, m/s^2 (world z-up, gravity along -z).
         max_gt_distance_s: s, the validity rule (module docstring).
         checks: duplicates, gaps, crop, self-checks, velocity window (``_assemble.ReadChecks``); its
-            ``vel_window_s`` left at the default means ``TUMVI_VEL_WINDOW_S``.
+            ``vel_window_s`` at ``ReadChecks``' default (0.05 s) means ``TUMVI_VEL_WINDOW_S``: an explicit 0.05 is
+            taken for the default too (give e.g. 0.0501 for EuRoC's window).
     """
     root = Path(path)
     if not root.is_dir():
@@ -81,20 +80,10 @@ def read_tumvi(
     if not (isinstance(max_gt_distance_s, int | float) and 0 < max_gt_distance_s <= 1.0):
         raise DataError(root, "max_gt_distance_s", f"expected seconds in (0, 1], got {max_gt_distance_s!r}")
     imu_path = resolve(root, imu_file or IMU_FILES[imu])
-    if not imu_path.is_file():
-        folder = imu_path.parent
-        there = sorted(p.name for p in folder.iterdir()) if folder.is_dir() else []
-        hint = (
-            "; the official download has no raw csv: pass imu_file=... to a raw export"
-            if imu == "raw" and imu_file is None
-            else ""
-        )
-        raise DataError(imu_path, "imu_file", f"IMU file not found (files in {folder}: {there or 'none'}){hint}")
-    table = read_table(imu_path, delimiter=",", min_columns=7, field="imu")
-    raw = table.data[:, :7]
-    table.require_finite(raw, "imu")
-    keep = check_timestamps(raw[:, 0] * NS, imu_path, "t", on_duplicate=checks.on_duplicate, line_of=table.line_of)
-    raw = raw[keep]
+    raw_hint = imu == "raw" and imu_file is None
+    samples = read_asl_imu(imu_path, checks.on_duplicate,
+                           "the official download has no raw csv: pass imu_file=... to a raw export" if raw_hint
+                           else "pass imu_file=...")  # fmt: skip
     gt = None
     if ground_truth:
         gt_path = resolve(root, gt_file or GT_FILE)
@@ -105,14 +94,6 @@ def read_tumvi(
     if checks.vel_window_s == VEL_WINDOW_S:
         checks = replace(checks, vel_window_s=TUMVI_VEL_WINDOW_S)
     return build_sequence(
-        root.name,
-        imu_path,
-        raw[:, 0] * NS,
-        raw[:, 1:4],
-        raw[:, 4:7],
-        np.array([0.0, 0.0, -gravity]),
-        gt=gt,
-        checks=checks,
-        line_of=lambda row: table.line_of(int(keep[row])),
-        max_gt_distance_s=float(max_gt_distance_s),
-    )
+        root.name, imu_path, samples.t, samples.gyro, samples.acc, np.array([0.0, 0.0, -gravity]), gt=gt,
+        checks=checks, line_of=samples.line_of, max_gt_distance_s=float(max_gt_distance_s),
+    )  # fmt: skip

@@ -12,6 +12,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import torch
 
+from learned_imu.config import WINDOW_RULES
 from learned_imu.datasets.sequence import ImuSequence
 from learned_imu.errors import InputError
 from learned_imu.evaluation import metrics
@@ -19,7 +20,6 @@ from learned_imu.geometry.preintegration import NavState, predict, preintegrate
 from learned_imu.training.windows import usable_windows
 
 INTERVAL_UNITS = ("s", "frames")
-WINDOW_RULES = ("valid", "end_valid")
 
 
 @dataclass(frozen=True)

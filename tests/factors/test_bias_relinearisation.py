@@ -133,27 +133,9 @@ def test_solve_relinearised_is_the_loop_built_in(drive):
     seq, export = drive
     n = len(export.keyframe_index)
 
-    def gtsams_own(values):
-        params = gtsam.PreintegrationParams(seq.gravity)
-        params.setGyroscopeCovariance(np.eye(3) * GYRO_COV)
-        params.setAccelerometerCovariance(np.eye(3) * ACC_COV)
-        params.setIntegrationCovariance(np.zeros((3, 3)))
-        out = []
-        for k, (a, b) in enumerate(zip(export.keyframe_index[:-1], export.keyframe_index[1:], strict=True)):
-            pim = gtsam.PreintegratedImuMeasurements(params, values.atConstantBias(B(k)))
-            for i in range(a, b):
-                pim.integrateMeasurement(seq.acc[i], seq.gyro[i], seq.t[i + 1] - seq.t[i])
-            out.append(gtsam.ImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), pim))
-        return out
-
-    theirs = relinearised(seq, export, gtsams_own)
-    graph = others(seq, export)
-    for factor in from_export(export)[0]:
-        graph.add(factor)
-    lm = gtsam.LevenbergMarquardtParams()
-    lm.setRelativeErrorTol(1e-14)
-    lm.setAbsoluteErrorTol(1e-14)
-    lm.setMaxIterations(200)
+    theirs = relinearised(seq, export, lambda values: gtsams_own(seq, export, values))
+    graph = first_order_graph(seq, export)
+    lm = tight_lm()
     done = solve_relinearised(graph, initial(seq, export), export, tol=1e-9, lm_params=lm)
     assert 2 <= done.rounds < 10 and done.bias_change < 1e-9
     for k in range(n):
@@ -178,27 +160,9 @@ def test_solve_relinearised_on_a_real_flight_with_a_large_gyro_bias(shared_data,
     export_preintegration(path, seq, index, GYRO_COV, ACC_COV)
     export = load_export(path)
 
-    def gtsams_own(values):
-        params = gtsam.PreintegrationParams(seq.gravity)
-        params.setGyroscopeCovariance(np.eye(3) * GYRO_COV)
-        params.setAccelerometerCovariance(np.eye(3) * ACC_COV)
-        params.setIntegrationCovariance(np.zeros((3, 3)))
-        out = []
-        for k, (a, b) in enumerate(zip(export.keyframe_index[:-1], export.keyframe_index[1:], strict=True)):
-            pim = gtsam.PreintegratedImuMeasurements(params, values.atConstantBias(B(k)))
-            for i in range(a, b):
-                pim.integrateMeasurement(seq.acc[i], seq.gyro[i], seq.t[i + 1] - seq.t[i])
-            out.append(gtsam.ImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), pim))
-        return out
-
-    theirs = relinearised(seq, export, gtsams_own)
-    graph = others(seq, export)
-    for factor in from_export(export)[0]:
-        graph.add(factor)
-    lm = gtsam.LevenbergMarquardtParams()
-    lm.setRelativeErrorTol(1e-14)
-    lm.setAbsoluteErrorTol(1e-14)
-    lm.setMaxIterations(200)
+    theirs = relinearised(seq, export, lambda values: gtsams_own(seq, export, values))
+    graph = first_order_graph(seq, export)
+    lm = tight_lm()
     first = solve(graph, initial(seq, export))
     done = solve_relinearised(graph, initial(seq, export), export, tol=1e-9, lm_params=lm)
     n = len(export.keyframe_index)
@@ -207,3 +171,34 @@ def test_solve_relinearised_on_a_real_flight_with_a_large_gyro_bias(shared_data,
     for k in range(n):
         np.testing.assert_allclose(done.values.atPose3(X(k)).translation(), theirs.atPose3(X(k)).translation(),
                                    atol=1e-6)  # fmt: skip
+
+
+def gtsams_own(seq, export, values) -> list:
+    """GTSAM's ImuFactors, each interval preintegrated by GTSAM around the bias ``values`` hold for it."""
+    params = gtsam.PreintegrationParams(seq.gravity)
+    params.setGyroscopeCovariance(np.eye(3) * GYRO_COV)
+    params.setAccelerometerCovariance(np.eye(3) * ACC_COV)
+    params.setIntegrationCovariance(np.zeros((3, 3)))
+    out = []
+    for k, (a, b) in enumerate(zip(export.keyframe_index[:-1], export.keyframe_index[1:], strict=True)):
+        pim = gtsam.PreintegratedImuMeasurements(params, values.atConstantBias(B(k)))
+        for i in range(a, b):
+            pim.integrateMeasurement(seq.acc[i], seq.gyro[i], seq.t[i + 1] - seq.t[i])
+        out.append(gtsam.ImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), pim))
+    return out
+
+
+def first_order_graph(seq, export) -> gtsam.NonlinearFactorGraph:
+    """The other factors and the export's first-order IMU factors."""
+    graph = others(seq, export)
+    for factor in from_export(export)[0]:
+        graph.add(factor)
+    return graph
+
+
+def tight_lm() -> gtsam.LevenbergMarquardtParams:
+    lm = gtsam.LevenbergMarquardtParams()
+    lm.setRelativeErrorTol(1e-14)
+    lm.setAbsoluteErrorTol(1e-14)
+    lm.setMaxIterations(200)
+    return lm

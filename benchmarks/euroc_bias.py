@@ -15,6 +15,10 @@ each sample, the mean of its correction so far: causal, so a deployed model coul
 correction is a constant: the std over 1-s means of the model's correction beside the std over 1-s means of the
 flight's own gyro error (raw minus ground-truth-implied, ``imu_from_ground_truth``) after removing its constant.
 ``--flights`` scores other flights than the three test flights (e.g. the ones a leave-flights-out run held out).
+``--observer KP,KI`` adds a model-free, causal estimate of the bias from the IMU alone: a Mahony filter (tilt from
+the accelerometer's gravity, gyro bias by its integral term, starting from the six-flight average) for each gain
+pair, so the part of a day's bias that gravity makes observable (the two horizontal axes) is measured without
+learning; the gains are to be chosen on the training flights (their mean ROE is printed first).
 """
 
 from __future__ import annotations
@@ -53,11 +57,34 @@ def own_residual_std(sequence) -> np.ndarray:
     return second_means_std(sequence, error - error[ok].mean(axis=0), ok)
 
 
+def gravity_observer(sequence, kp: float, ki: float, start: np.ndarray) -> np.ndarray:
+    """(N, 3) causal gyro bias of a Mahony filter: tilt from the accelerometer, bias from the integral term.
+
+    ``up`` is the world's up axis in the body frame; the error ``e = a/|a| x up`` rotates it toward the measured
+    specific force (gain ``kp``, 1/s) and integrates into the bias (``ki``, 1/s^2). Yaw is not observed.
+    """
+    gyro, acc, dt = sequence.gyro, sequence.acc, sequence.dt
+    bias, out = start.astype(float).copy(), np.empty_like(gyro)
+    up = acc[0] / np.linalg.norm(acc[0])
+    for i in range(len(gyro)):
+        out[i] = bias
+        e = np.cross(acc[i] / np.linalg.norm(acc[i]), up)
+        bias -= ki * e * dt[i]
+        w = (gyro[i] - bias + kp * e) * dt[i]  # up (fixed in the world) moves by -w in the body frame
+        angle = np.linalg.norm(w)
+        if angle > 0:
+            k = -w / angle
+            up = up * np.cos(angle) + np.cross(k, up) * np.sin(angle) + k * (k @ up) * (1 - np.cos(angle))
+        up /= np.linalg.norm(up)
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--data", default=str(Path(__file__).resolve().parents[2] / "shared" / "data"))
     parser.add_argument("--checkpoint", default=None)
     parser.add_argument("--flights", default=",".join(TEST), help="flights scored with --checkpoint (comma-separated)")
+    parser.add_argument("--observer", action="append", default=[], help="KP,KI of a gravity-referenced bias observer")
     args = parser.parse_args()
     scored = tuple(args.flights.split(","))
     euroc = Path(args.data) / "euroc"
@@ -77,6 +104,12 @@ def main() -> None:
             f"  {name:16s} {roe(seq, seq.gyro - own[name]):.4f} | {roe(seq, seq.gyro - room):.4f} | "
             f"{roe(seq, seq.gyro - everything):.4f}"
         )
+    for gains in args.observer:
+        kp, ki = (float(v) for v in gains.split(","))
+        scores = {n: roe(s, s.gyro - gravity_observer(s, kp, ki, everything)) for n, s in flights.items()}
+        train_mean = np.mean([scores[n] for n in TRAIN])
+        tests = " | ".join(f"{n} {scores[n]:.4f}" for n in TEST)
+        print(f"gravity observer kp {kp:g} ki {ki:g}: training flights' mean ROE {train_mean:.4f}; {tests}")
     if args.checkpoint:
         from learned_imu.network.checkpoint import model_from_checkpoint
         from learned_imu.network.inference import correct

@@ -19,14 +19,16 @@ Entity layout of a fusion recording, one time line ``time`` in seconds (IMU cloc
 
 Every series is named and coloured with a static ``SeriesLines``. Whole series go in with ``rr.send_columns``;
 constants are ``static``. The blueprint: the 3-D view (dead reckoning excluded, ellipsoids of the headline setting
-visible, the others hidden, one click away) beside tabs of plots split by unit; blueprint and time panels open.
+visible, the others hidden, in the blueprint panel) beside tabs of plots split by unit; the time panel open, the
+blueprint panel collapsed (its narrow tree cut the names; each view names itself).
 ``airimu view out.rrd`` opens the viewer.
 
 A training recording (``write_training_recording``, ``<run>/training.rrd``, rewritten after every epoch), time line
 ``epoch``: ``loss`` (train and validation; ``loss/best`` marks the epoch ``best.pt`` holds), ``val/roe_deg``,
-``val/rpe_rmse_m``, ``lr``, ``seconds``; ``description``, the run in a sentence. A fusion recording's
-``description`` names it and scores each setting (ATE against the ground truth), each track is labelled at its end
-(``.../end``), and the time panel opens paused with the whole run selected.
+``val/rpe_rmse_m``, ``lr``, ``seconds``; ``loss/early_stop`` marks the last epoch of a run that stopped early;
+``description``, the run in a sentence. A fusion recording's ``description`` names it and scores each setting (ATE
+against the ground truth), each track carries its name at a different stretch of it (``.../label``: at the tracks'
+common end the names overlapped), and the time panel opens paused with the whole run selected.
 """
 
 from __future__ import annotations
@@ -131,7 +133,7 @@ def write_recording(
 
 def _description(application: str, fused, truth, dead_reckoning, gps) -> str:
     """The recording's text panel: what it is, its data and every setting with its ATE against the ground truth."""
-    lines = [f"# {application}", ""]
+    lines = [f"**{application}**", ""]
     if fused:
         t = fused[0].t
         lines.append(f"{len(t)} keyframes over {float(t[-1] - t[0]):.1f} s; ground truth: {'yes' if truth else 'no'}; "
@@ -143,9 +145,10 @@ def _description(application: str, fused, truth, dead_reckoning, gps) -> str:
         lines.append(f"| {track.name} | {ate} |")
     if dead_reckoning:
         lines += ["", "Dead reckoning (own tab): " + ", ".join(t.name for t in dead_reckoning) + "."]
-    lines += ["", "3-D view: each setting's track is labelled at its end; the ellipsoids (3-sigma marginal position "
-              "covariance at the time cursor) are shown for the headline setting, the others' one click away in the "
-              "blueprint panel. Plots: position error against its 3-sigma bound per setting, and the IMU."]
+    lines += ["", "3-D view: each setting's track carries its name (at a different stretch of each track); the "
+              "ellipsoids (3-sigma marginal position covariance at the time cursor) are shown for the headline "
+              "setting, the others' in the blueprint panel (the icon at the top right opens it). Plots: position "
+              "error against its 3-sigma bound per setting, and the IMU."]  # fmt: skip
     return "\n".join(lines)
 
 
@@ -180,12 +183,20 @@ def _log_world(rec, fused, truth, dead_reckoning, gps, palette) -> None:
         _send(rec, f"{entity}/now", track.t, rr.Points3D.columns(positions=track.pos))
         rec.log(f"{entity}/now", rr.Points3D.from_fields(colors=color, radii=MARKER, labels=track.name,
                                                           show_labels=False), static=True)  # fmt: skip
-        rec.log(f"{entity}/end", rr.Points3D(track.pos[-1:], colors=color, radii=MARKER, labels=track.name,
-                                             show_labels=True), static=True)  # a name, not only a colour  # fmt: skip
+        at = _label_point(track, fused.index(track), len(fused))  # a name, not only a colour
+        rec.log(f"{entity}/label", rr.Points3D(at, colors=color, radii=MARKER, labels=track.name, show_labels=True),
+                static=True)  # fmt: skip
         if track.pos_cov is not None:
             _send_ellipsoids(rec, f"{entity}/covariance", track, color)
     for track in dead_reckoning:
         _log_track(rec, f"world/dead_reckoning/{_slug(track.name)}", track, palette[track.name], show_label=True)
+
+
+def _label_point(track: Track, i: int, n: int) -> np.ndarray:
+    """(1, 3) where setting ``i`` of ``n`` carries its name: a different stretch of its track for each (the tracks
+    end close together, where their labels overlapped), from the middle on, away from the ground truth's label."""
+    k = int(round((len(track.pos) - 1) * (0.5 + 0.5 * (i + 1) / (n + 1))))
+    return track.pos[k : k + 1]
 
 
 def _log_track(rec, entity: str, track: Track, color, show_label: bool, radius=LINE) -> None:
@@ -306,12 +317,12 @@ def _blueprint(
     units = {"gyro": "gyro (rad/s)", "acc": "acc (m/s²)"}
     tabs += [rrb.Vertical(*map(_view, views), name=units[sensor]) for sensor, views in plots.sensors.items()]
     about = rrb.TextDocumentView(origin="/description", name="about this recording")
-    left = rrb.Vertical(about, left, row_shares=[1, 4])
+    left = rrb.Vertical(about, left, row_shares=[2, 5])
     layout = rrb.Horizontal(left, rrb.Tabs(*tabs, active_tab=0), column_shares=[3, 2]) if tabs else left
     selection = None if span is None else rr.encodings.AbsoluteTimeRange(*span)
     return rrb.Blueprint(
         layout,
-        rrb.BlueprintPanel(state="expanded"),
+        rrb.BlueprintPanel(state="collapsed"),  # its narrow tree cut the views' names; the views name themselves
         rrb.SelectionPanel(state="collapsed"),
         rrb.TimePanel(state="expanded", timeline=TIMELINE, play_state="paused", time_selection=selection),
         auto_views=False,
@@ -350,6 +361,8 @@ def write_training_recording(folder: str | Path, history: list[EpochLog]) -> Pat
     history = [entry.to_dict() for entry in history]
     epochs = np.array([entry["epoch"] + 1 for entry in history], dtype=np.int64)
     views = []
+    # an epoch of margin on both sides, so that the first and last epochs' markers are not cut by the plot's edge
+    margin = rrb.TimeRange(rrb.TimeRangeBoundary.absolute(seq=0), rrb.TimeRangeBoundary.absolute(seq=len(epochs) + 1))
     with _saved(path, rr.RecordingStream("airimu-training", recording_id=str(Path(folder).resolve()))) as rec:
         for entity, keys, names, rgb, title, corner in TRAINING_SERIES:
             if not history or not all(key in history[0] for key in keys):
@@ -361,7 +374,7 @@ def write_training_recording(folder: str | Path, history: list[EpochLog]) -> Pat
                     static=True)  # fmt: skip
             rec.send_columns(entity, indexes=[rr.TimeColumn("epoch", sequence=epochs)],
                              columns=rr.Scalars.columns(scalars=values if len(keys) > 1 else values[:, 0]))  # fmt: skip
-            views.append(rrb.TimeSeriesView(name=title, origin=f"/{entity}",
+            views.append(rrb.TimeSeriesView(name=title, origin=f"/{entity}", axis_x=rrb.TimeAxis(view_range=margin),
                                             plot_legend=rrb.PlotLegend(rrb.Corner2D[corner])))  # fmt: skip
         if history and all("val_loss" in entry for entry in history):  # the epoch best.pt holds, marked
             best = min(range(len(history)), key=lambda i: history[i]["val_loss"])
@@ -369,15 +382,39 @@ def write_training_recording(folder: str | Path, history: list[EpochLog]) -> Pat
                                                  markers=["diamond"], marker_sizes=[8.0]), static=True)  # fmt: skip
             rec.set_time("epoch", sequence=int(epochs[best]))
             rec.log("loss/best", rr.Scalars(history[best]["val_loss"]))
-            summary = (f"# training\n\n{len(history)} epochs; best validation loss {history[best]['val_loss']:.5g} at "
-                       f"epoch {int(epochs[best])} (1 = the first): the weights best.pt holds.")  # fmt: skip
+            summary = (f"**training**\n\n{len(history)} epochs; best validation loss {history[best]['val_loss']:.5g} "
+                       f"at epoch {int(epochs[best])} (1 = the first): the weights best.pt holds.")  # fmt: skip
+            stop = _early_stop(Path(folder), history, best)
+            if stop is not None:  # the epoch the run stopped at, marked beside the best one
+                marker = rr.SeriesPoints(names=["early stop"], colors=[colors.VALIDATION], markers=["cross"],
+                                         marker_sizes=[8.0])  # fmt: skip
+                rec.log("loss/early_stop", marker, static=True)
+                rec.set_time("epoch", sequence=int(epochs[-1]))
+                rec.log("loss/early_stop", rr.Scalars(history[-1]["val_loss"]))
+                summary += (f" Stopped early after epoch {int(epochs[-1])} of {stop[0]}: no lower validation loss "
+                            f"in {stop[1]} epochs (train.early_stop_patience).")  # fmt: skip
             rec.log("description", rr.TextDocument(summary, media_type=rr.MediaType.MARKDOWN), static=True)
             views.insert(0, rrb.TextDocumentView(origin="/description", name="about this run"))
-        panels = (rrb.BlueprintPanel(state="expanded"), rrb.SelectionPanel(state="collapsed"),
+        panels = (rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"),
                   rrb.TimePanel(state="collapsed", timeline="epoch"))  # fmt: skip
         blueprint = rrb.Blueprint(rrb.Grid(*views), *panels, auto_views=False)
         rec.send_blueprint(blueprint, make_active=True)
     return path
+
+
+def _early_stop(folder: Path, history: list[dict], best: int) -> tuple[int, int] | None:
+    """(planned epochs, patience) when the run in ``folder`` (its ``config.yaml``) stopped early at the last epoch of
+    ``history`` (the rule of ``train_run``), else None; None without a readable config too."""
+    from learned_imu.config import load_config
+    from learned_imu.errors import AirImuError
+
+    try:
+        train = load_config(folder / "config.yaml").train
+    except (AirImuError, OSError):
+        return None
+    patience = train.early_stop_patience
+    stalled = patience > 0 and history[-1]["epoch"] - history[best]["epoch"] >= patience
+    return (train.epochs, patience) if stalled and len(history) < train.epochs else None
 
 
 @contextmanager
@@ -402,5 +439,3 @@ def _at(track: Track, t: np.ndarray) -> np.ndarray:
 
 def _slug(name: str) -> str:
     return re.sub(r"[^a-z0-9]+", "_", name.lower()).strip("_")
-
-

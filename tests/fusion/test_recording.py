@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import re
 from collections import defaultdict
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -107,8 +108,8 @@ def test_blueprint_views_and_entity_filters(recording):
     overview = views["position error, all settings (m)"]["query"]
     slugs = ("raw_imu_fixed_cov", "airimu_fixed_cov", "raw_imu_learned_cov", "airimu_learned_cov")
     assert overview == [f"+ /error/position/{s}" for s in slugs]
-    # panels open: blueprint tree and time panel expanded (PanelState 3), on the time line "time"
-    assert blueprint["/blueprint_panel"]["PanelBlueprint:state"] == [[3]]
+    # the time panel expanded (PanelState 3), on the time line "time"; the blueprint tree collapsed (2): it cut names
+    assert blueprint["/blueprint_panel"]["PanelBlueprint:state"] == [[2]]
     assert blueprint["/time_panel"]["TimePanelBlueprint:state"] == [[3]]
     assert blueprint["/time_panel"]["TimePanelBlueprint:timeline"] == [["time"]]
     # tabs per sensor on the plot side
@@ -224,10 +225,14 @@ def test_the_recording_explains_itself(recording):
     for i, name in enumerate(SETTINGS):
         assert f"| {name} | {0.01 * (i + 1):.3f} |" in text  # its constant offset from the truth is its ATE
     assert "101 keyframes over 10.0 s; ground truth: yes; GPS fixes fused: 11" in text
+    at = []
     for name in SETTINGS:
         slug = re.sub(r"[^a-z0-9]+", "_", name.lower()).strip("_")
-        end = entities[f"/world/fused/{slug}/end"]
-        assert end["Points3D:labels"][-1] == [name] and end["Points3D:show_labels"][-1] == [True]
+        label = entities[f"/world/fused/{slug}/label"]
+        assert label["Points3D:labels"][-1] == [name] and label["Points3D:show_labels"][-1] == [True]
+        at.append(np.ravel(label["Points3D:positions"][-1]))
+    # the names stand apart (the tracks end 1 cm from each other, where the names overlapped): > 0.3 m here
+    assert min(np.linalg.norm(a - b) for i, a in enumerate(at) for b in at[i + 1 :]) > 0.3
     blueprint = _entities(path, blueprint=True)
     assert _views(blueprint)["about this recording"]["class"] == "TextDocument"
     selection = blueprint["/time_panel"]["TimePanelBlueprint:time_selection"][-1][0]
@@ -247,6 +252,28 @@ def test_the_training_recording_marks_the_epoch_best_pt_holds(tmp_path):
     text = entities["/description"]["TextDocument:text"][-1][0]
     assert "5 epochs; best validation loss 0.3 at epoch 3" in text
     assert "about this run" in _views(_entities(path, blueprint=True))
+    assert "/loss/early_stop" not in entities  # no config.yaml in the folder: nothing says the run stopped early
+
+
+def test_the_training_recording_marks_an_early_stop(tmp_path):
+    """A run that stopped early (its config's patience) says so: a cross on the loss at the last epoch, a sentence."""
+    from fusion.recording import write_training_recording
+    from learned_imu.config import load_config, save_config
+    from learned_imu.training.train import EpochLog
+
+    (tmp_path / "tiny.yaml").write_text(TINY)
+    config = load_config(tmp_path / "tiny.yaml")
+    config = replace(config, train=replace(config.train, epochs=20, early_stop_patience=2))
+    save_config(tmp_path / "config.yaml", config)
+    losses = [0.9, 0.5, 0.3, 0.35, 0.4]  # best at epoch 3, two epochs without a lower one: train_run stops
+    history = [EpochLog(i, 1.0 - 0.1 * i, v, 1e-3, seconds=float(i)) for i, v in enumerate(losses)]
+    entities = _entities(write_training_recording(tmp_path, history))
+    assert np.ravel(entities["/loss/early_stop"]["Scalars:scalars"]).tolist() == [0.4]
+    assert entities["/loss/early_stop"]["SeriesPoints:names"] == [["early stop"]]
+    text = entities["/description"]["TextDocument:text"][-1][0]
+    assert "Stopped early after epoch 5 of 20: no lower validation loss in 2 epochs" in text
+    entities = _entities(write_training_recording(tmp_path, history[:4]))  # one epoch short of the patience
+    assert "/loss/early_stop" not in entities
 
 
 def test_the_per_setting_error_plots_share_one_y_range(recording):

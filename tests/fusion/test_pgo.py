@@ -44,14 +44,20 @@ def test_table_rows_and_files(ablation):
     rows = json.loads(files["json"].read_text())
     first = [(r["setting"], r["gps_hz"]) for r in rows][:2]
     assert first == [("raw IMU + fixed cov", 1.0), ("raw IMU + fixed cov", 0.25)]
-    keys = {"setting", "gps_hz", "sequence", "ate_mean_m", "ate_std_m", "paper_ate_m"}
+    keys = {"setting", "gps_hz", "sequence", "ate_mean_m", "ate_std_m", "gps_chi2_per_dof", "imu_chi2_per_dof",
+            "paper_ate_m"}  # fmt: skip
     assert len(rows) == 8 and all(set(r) == keys for r in rows)
+    # every solve checked against its own noise model: the simulator's GPS sigma is the one fused, so the GPS
+    # factors fit (of order 1, below it: the states absorb part of the residuals)
+    assert all(0.05 < r["gps_chi2_per_dof"] < 3 for r in rows), [r["gps_chi2_per_dof"] for r in rows]
+    assert all(r["imu_chi2_per_dof"] > 0 for r in rows)
     assert all(r["paper_ate_m"] is None for r in rows)  # a simulated sequence: the paper has no value for it
     by = {(r["setting"], r["gps_hz"]): r["ate_mean_m"] for r in rows}
     assert all(0 < v < 5 for v in by.values())
     assert by[("raw IMU + fixed cov", 1.0)] < by[("raw IMU + fixed cov", 0.25)]  # more GPS, less error
     assert "AirIMU + learned cov" in output and "+-" in output
-    assert files["csv"].read_text().splitlines()[0] == "setting,gps_hz,sequence,ate_mean_m,ate_std_m,paper_ate_m"
+    header = "setting,gps_hz,sequence,ate_mean_m,ate_std_m,gps_chi2_per_dof,imu_chi2_per_dof,paper_ate_m"
+    assert files["csv"].read_text().splitlines()[0] == header
     assert files["png"].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 

@@ -19,6 +19,17 @@ rather than one shared ``B(0)``: a key in every factor sits in ISAM2's root cliq
 so the update time grows with the whole trajectory (BENCHMARKS.md, "Design measurements").
 The solution is the same (the bias is exactly zero either way); ISAM2 eliminates the constraint's clique by QR
 (``EliminatePreferCholesky``), so no tight prior is needed. Latency: BENCHMARKS.md ("Online fusion").
+
+With ``bias=BiasStates(...)`` (``factor="between"``, GTSAM's ``IMUKittiExampleGPS.py`` structure) each ``B(k)`` is
+estimated: a prior on ``B(0)``, the random walk ``B(k) -> B(k+1)`` (``BiasStates.walk_sigmas``), and each interval
+preintegrated around the latest estimate of its bias (GTSAM's ``biasHat``). With the ``"isam2"`` smoother the
+re-linearisation of ``factors.solve_relinearised`` is built in: after every update, each interval whose bias estimate
+has moved more than ``relinearise_tol`` (rad/s and m/s^2) from the bias it was preintegrated around is preintegrated
+again around the estimate, and its ``ImuFactor`` swapped in the smoother (``ISAM2.update``'s
+``removeFactorIndices``); ``flush`` repeats this until no bias moves more than the tolerance. The result equals
+GTSAM's own graph preintegrated at the converged biases (``tests/fusion/test_online_bias.py``: 1e-6 m). This keeps
+every interval's samples (13 floats a sample). The fixed-lag smoother estimates the biases too, each interval
+preintegrated around the bias estimate at its arrival, first-order after that (its factor indices are not exposed).
 """
 
 from __future__ import annotations
@@ -33,7 +44,7 @@ import torch
 
 from factors import GpsFactor, gps_noise, learned_pim
 from factors.gps import ROBUST_LOSSES
-from fusion.graph import Trajectory
+from fusion.graph import BiasStates, Trajectory
 from fusion.initial import first_state, priors_on_first
 from learned_imu.errors import AirImuError, InputError
 from learned_imu.network.inference import check_times_rate
@@ -48,6 +59,18 @@ SMOOTHERS = ("isam2", "fixed_lag")
 # LM one than this; both measured in BENCHMARKS.md, "Design measurements".
 RELINEARIZE_THRESHOLD = 0.01
 RATE_CHECK_SAMPLES = 20  # samples seen before the stream's rate is compared with the model's training rate
+CONVERGE_ROUNDS = 20  # flush's re-linearisation rounds at most (bias states with ISAM2)
+
+
+@dataclass(eq=False)
+class _Interval:
+    """One interval's samples (gyro, acc, dt, gyro_cov, acc_cov), the bias its factor was preintegrated around and
+    the factor's index in ISAM2: what re-linearisation needs."""
+
+    k: int  # from keyframe k to k + 1
+    samples: tuple[np.ndarray, ...]
+    bias_hat: gtsam.imuBias.ConstantBias
+    index: int
 
 
 @dataclass(frozen=True, eq=False)
@@ -89,6 +112,11 @@ class OnlineFusion:
         prior_rot_sigma_rad, prior_pos_sigma_m, prior_vel_sigma_m_s: one-sigma prior on the first state.
         gps_robust: None, ``"huber"`` or ``"cauchy"`` (``factors.gps_noise``).
         lever_arm_m: (3,) GPS antenna position in the IMU frame, m.
+        bias: estimate a bias state per keyframe (``fusion.graph.BiasStates`` with ``factor="between"``; module
+            docstring); None: the corrected samples' bias is zero.
+        relinearise_tol: with ``bias`` and ``"isam2"``, an interval is preintegrated again once its bias estimate
+            moved more than this (rad/s, m/s^2) from the one it was preintegrated around.
+        relinearize_threshold: ISAM2's relinearisation threshold (rad, m, m/s; see ``RELINEARIZE_THRESHOLD``).
     """
 
     def __init__(
@@ -106,6 +134,9 @@ class OnlineFusion:
         prior_vel_sigma_m_s: float = 0.1,
         gps_robust: str | None = None,
         lever_arm_m=(0.0, 0.0, 0.0),
+        bias: BiasStates | None = None,
+        relinearise_tol: float = 1e-2,
+        relinearize_threshold: float = RELINEARIZE_THRESHOLD,
     ):
         if model is not None and model.training:
             raise InputError("OnlineFusion: call model.eval() first (streaming needs eval mode)")
@@ -128,10 +159,22 @@ class OnlineFusion:
                 f"OnlineFusion: unknown gps_robust {gps_robust!r}; known: None, {', '.join(ROBUST_LOSSES)}"
             )
         self._gps_robust, self._lever_arm_m = gps_robust, _vector("lever_arm_m", lever_arm_m)
+        if bias is not None and (not isinstance(bias, BiasStates) or bias.factor != "between"):
+            raise InputError(f"OnlineFusion: bias must be a BiasStates with factor='between' (an ImuFactor and "
+                             f"the random walk between bias keys, as IMUKittiExampleGPS.py), got {bias!r}")  # fmt: skip
+        if not relinearise_tol > 0 or not relinearize_threshold > 0:
+            raise InputError(f"OnlineFusion: need relinearise_tol > 0 and relinearize_threshold > 0, got "
+                             f"{relinearise_tol}, {relinearize_threshold}")  # fmt: skip
+        self._bias, self._relinearise_tol = bias, float(relinearise_tol)
+        self._intervals: list[_Interval] = []  # bias states with ISAM2: every interval, for re-linearisation
+        self._samples_seen = 0  # samples in the graph's intervals (the cumulative bias walk counts them)
+        self.reintegrated = 0  # intervals preintegrated again around a moved bias estimate, so far
         params = gtsam.ISAM2Params()
-        params.setRelinearizeThreshold(RELINEARIZE_THRESHOLD)
+        params.setRelinearizeThreshold(float(relinearize_threshold))
         params.relinearizeSkip = 1
         params.enablePartialRelinearizationCheck = True
+        if bias is not None:  # tight IMU factors beside a loose bias prior: Cholesky finds the system indeterminate
+            params.setFactorization("QR")  # (as with GTSAM's IMUKittiExampleGPS.py, BENCHMARKS.md)
         self._fixed_lag = smoother == "fixed_lag"
         self._smoother = gtsam.IncrementalFixedLagSmoother(lag_s, params) if self._fixed_lag else gtsam.ISAM2(params)
         self._stream = model.initial_state(1) if model is not None else None
@@ -212,6 +255,8 @@ class OnlineFusion:
             else:
                 late.append(fix[0])
         self._waiting = []
+        if self._bias is not None and not self._fixed_lag:
+            self._converge()
         self.unused_fixes = tuple(late)
         if late:
             log.warning(
@@ -251,6 +296,11 @@ class OnlineFusion:
             graph.add(prior)
         values.insert(X(0), pose)
         values.insert(V(0), vel)
+        if self._bias is not None:
+            zero = gtsam.imuBias.ConstantBias()
+            sigmas = np.array([self._bias.acc_prior_sigma] * 3 + [self._bias.gyro_prior_sigma] * 3)
+            graph.add(gtsam.PriorFactorConstantBias(B(0), zero, gtsam.noiseModel.Diagonal.Sigmas(sigmas)))
+            values.insert(B(0), zero)
         self._in_graph = 1
         self._update(graph, values)
 
@@ -291,22 +341,70 @@ class OnlineFusion:
         """The learned IMU factor from the last keyframe in the graph to the next one, its fixes, one update."""
         k = self._in_graph
         s = self._samples[:end]
+        samples = (s[:, 0:3], s[:, 3:6], np.diff(self._t[: end + 1]), s[:, 6:9], s[:, 9:12])
+        hat = gtsam.imuBias.ConstantBias() if self._bias is None else self._bias_estimate(k - 1)
         # GTSAM's own preintegration with the learned per-sample noise: for the ~20-200 samples of one interval it
         # is much cheaper than learned_imu.preintegrate + pim_from_deltas (torch call overhead; BENCHMARKS.md)
-        pim = learned_pim(s[:, 0:3], s[:, 3:6], np.diff(self._t[: end + 1]), s[:, 6:9], s[:, 9:12], self._gravity)
+        pim = learned_pim(*samples, self._gravity, bias=hat)
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        zero = gtsam.imuBias.ConstantBias()
-        graph.add(gtsam.ImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k), pim))
-        graph.add(gtsam.NonlinearEqualityConstantBias(B(k), zero))
+        if self._bias is None:  # the corrected samples' bias: zero, through B(k) (module docstring)
+            graph.add(gtsam.ImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k), pim))
+            graph.add(gtsam.NonlinearEqualityConstantBias(B(k), hat))
+        else:  # interval k-1 -> k on the bias of keyframe k-1, and the walk to B(k)
+            graph.add(gtsam.ImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), pim))
+            self._samples_seen += end
+            count = self._samples_seen if self._bias.walk == "cumulative" else end
+            walk = gtsam.noiseModel.Diagonal.Sigmas(self._bias.walk_sigmas(np.array([count]))[0])
+            graph.add(gtsam.BetweenFactorConstantBias(B(k - 1), B(k), gtsam.imuBias.ConstantBias(), walk))
         for factor in self._gps_for.pop(k, []):
             graph.add(factor)
-        predicted = pim.predict(gtsam.NavState(*self._estimate(k - 1)), zero)
+        predicted = pim.predict(gtsam.NavState(*self._estimate(k - 1)), hat)
         values.insert(X(k), predicted.pose())
         values.insert(V(k), predicted.velocity())
-        values.insert(B(k), zero)
+        values.insert(B(k), hat)
         self._t, self._samples, self._base = self._t[end:], self._samples[end:], self._base + end
         self._in_graph += 1
-        self._update(graph, values)
+        result = self._update(graph, values)
+        if self._bias is not None and not self._fixed_lag:
+            copies = tuple(np.array(x) for x in samples)
+            self._intervals.append(_Interval(k - 1, copies, hat, int(result.getNewFactorsIndices()[0])))
+            self._relinearise()
+
+    def _bias_estimate(self, k: int) -> gtsam.imuBias.ConstantBias:
+        return self._smoother.calculateEstimateConstantBias(B(k))
+
+    def _relinearise(self) -> int:
+        """Preintegrate again, around its bias estimate, every interval whose estimate moved more than the tolerance
+        from the bias its factor was preintegrated around; swap the factors in one ISAM2 update. Returns how many."""
+        stale = []
+        for interval in self._intervals:
+            now = self._bias_estimate(interval.k)
+            if np.abs(now.vector() - interval.bias_hat.vector()).max() > self._relinearise_tol:
+                stale.append((interval, now))
+        if not stale:
+            return 0
+        graph = gtsam.NonlinearFactorGraph()
+        for interval, now in stale:
+            pim = learned_pim(*interval.samples, self._gravity, bias=now)
+            k = interval.k
+            graph.add(gtsam.ImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), pim))
+        result = self._smoother.update(graph, gtsam.Values(), [interval.index for interval, _ in stale])
+        for (interval, now), index in zip(stale, result.getNewFactorsIndices(), strict=True):
+            interval.bias_hat, interval.index = now, int(index)
+        self.reintegrated += len(stale)
+        return len(stale)
+
+    def _converge(self) -> None:
+        """At the end of the stream: ISAM2 steps and re-linearisation until no bias estimate moves more than the
+        tolerance from its interval's (at most ``CONVERGE_ROUNDS``)."""
+        for _ in range(CONVERGE_ROUNDS):
+            self._smoother.update()
+            if not self._relinearise():
+                self._smoother.update()
+                if not self._relinearise():
+                    return
+        log.warning("OnlineFusion.flush: the bias estimates still moved more than relinearise_tol=%g after %d rounds",
+                    self._relinearise_tol, CONVERGE_ROUNDS)  # fmt: skip
 
     def _attach(self, k: int, fix) -> bool:
         """The GPS factor of ``fix`` on keyframe ``k``: added now if ``k`` is in the graph, else kept for it."""
@@ -322,17 +420,16 @@ class OnlineFusion:
         self._update(graph, gtsam.Values())
         return True
 
-    def _update(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
+    def _update(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values):
         if not self._fixed_lag:
-            self._smoother.update(graph, values)
-            return
+            return self._smoother.update(graph, values)
         now = self._kf_t[self._in_graph - 1]
         stamps = {key: now for key in values.keys()}
         for k in range(len(self._frozen), self._in_graph):  # keyframes this update marginalises: keep their estimate
             if self._kf_t[k] >= now - self._lag_s:
                 break
             self._frozen[k] = self._estimate(k)
-        self._smoother.update(graph, values, stamps)
+        return self._smoother.update(graph, values, stamps)
 
     def _estimate(self, k: int) -> tuple[gtsam.Pose3, np.ndarray]:
         if k in self._frozen:

@@ -17,6 +17,11 @@ on positions and velocities) and mapped from the GPS file's frame into the groun
 scale and offset that ``read_kitti_raw(gps_file=...)`` fits. Also printed: what the model does on this drive (the
 mean of its correction, here and on the training drives) and how calibrated its covariance is over 1 s and 10 s
 (NSE on this drive and on the validation drives, and the validation drives' maximum-likelihood noise scales).
+
+Which learned row to report is chosen without this drive: every candidate of ``CANDIDATES`` runs the same loop on
+each validation drive of the KITTI config (its IMU written in GTSAM's file format, its GPS file the OXTS solution's
+positions at 1 Hz, as GTSAM's file holds the OXTS positions of its drive), scored by ATE against the OXTS ground
+truth; at each rate the candidate with the lowest mean ATE over the validation drives is the learned row.
 """
 
 from __future__ import annotations
@@ -137,6 +142,94 @@ def variants(example) -> list[Variant]:
     ]
 
 
+# the rows that may stand for the learned model (names of ``variants``); the validation drives choose among them
+CANDIDATES = (
+    "mirror + KITTI model (corrections, learned noise)",
+    "model's corrections, the script's noise",
+    "raw IMU + learned noise",
+    "model, learned noise x validation scales at the GPS interval",
+    "raw IMU + learned noise x validation scales at the GPS interval",
+    "raw IMU + learned gyro noise x validation scale, the script's acc noise (chosen on this drive)",
+)
+
+
+def write_gtsam_files(drive, folder: Path, metadata: Path) -> None:
+    """``drive`` (a ``kitti_raw`` sequence) as GTSAM's example files: the IMU file (its ``dt`` column the time since
+    the previous sample; rows interpolated linearly inside the drive's time gaps, as GTSAM's file has them) and a GPS
+    file of the OXTS positions every 1 s."""
+    folder.mkdir(parents=True, exist_ok=True)
+    step = float(np.median(np.diff(drive.t)))
+    t = [drive.t[:1]]
+    for a, b in zip(drive.t[:-1], drive.t[1:], strict=True):
+        inside = np.arange(1, int(round((b - a) / step))) * step + a if b - a > 1.5 * step else np.zeros(0)
+        t += [inside, np.array([b])]
+    t = np.concatenate(t)
+    samples = [np.column_stack([np.interp(t, drive.t, x[:, i]) for i in range(3)]) for x in (drive.acc, drive.gyro)]
+    imu = np.column_stack([t, np.diff(t, prepend=t[0]), *samples])
+    np.savetxt(folder / "KittiEquivBiasedImu.txt", imu, header="Time dt accelX accelY accelZ omegaX omegaY omegaZ",
+               comments="", fmt="%.12f")  # fmt: skip
+    fixes = np.flatnonzero(np.diff(np.floor(drive.t - drive.t[0]), prepend=-1) > 0)  # the first sample of each second
+    fixes = fixes[drive.gt.valid[fixes]]
+    gps = np.column_stack([drive.t[fixes], drive.gt.pos[fixes]])
+    np.savetxt(folder / "KittiGps_converted.txt", gps, header="Time,X,Y,Z", comments="", delimiter=",", fmt="%.12f")
+    (folder / METADATA).write_bytes(metadata.read_bytes())
+
+
+METADATA = "KittiEquivBiasedImu_metadata.txt"
+
+
+def drive_ate_m(run, drive) -> float:
+    """ATE of a run on a validation drive against its OXTS ground truth (the GPS file is in the truth's frame)."""
+    traj = Trajectory(run.t, run.rot, run.pos, run.vel)
+    fused = run.t[run.fused]
+    inside = (drive.t >= fused[0]) & (drive.t <= fused[-1]) & drive.gt.valid
+    err = traj.position_at(drive.t[inside]) - drive.gt.pos[inside]
+    return float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
+
+
+def choose_on_validation(example, model, config, inputs: Inputs, data: Path, scratch: Path) -> dict:
+    """For each rate (gps_skip): each candidate's mean ATE over the validation drives and the one with the lowest."""
+    from learned_imu.network.inference import correct
+    from learned_imu.training.experiment import load_sequences
+
+    calibration = example.read_calibration(data / "kitti_gtsam" / METADATA)
+    by_variant = {v.name: v for v in variants(example)}
+    scores = {(name, skip): [] for name in CANDIDATES for skip, _ in RATES}
+    for i, drive in enumerate(load_sequences(config.data.val, config.data.root)):
+        folder = scratch / f"val{i}"
+        write_gtsam_files(drive, folder, data / "kitti_gtsam" / METADATA)
+        seq = read_sequence("kitti", folder)
+        out = correct(model, seq)
+        samples = example.Samples(*(np.asarray(x.numpy(), dtype=float) for x in (out.gyro, out.acc, out.gyro_cov,
+                                                                                     out.acc_cov)))  # fmt: skip
+        here = dataclasses.replace(inputs, raw=example.raw_samples(seq, calibration), model=samples)
+        for name in CANDIDATES:
+            variant = by_variant[name]
+            for skip, wait in RATES:
+                kwargs = {"bias_prior_sigmas": variant.bias_prior_sigmas} if variant.bias_prior_sigmas else {}
+                try:
+                    run = example.run(folder, gps_skip=skip, wait=wait, samples=variant.samples(here, skip), **kwargs)
+                except RuntimeError:  # the script's loop stops (indeterminate) on some short drives
+                    scores[name, skip].append(np.nan)
+                else:
+                    scores[name, skip].append(drive_ate_m(run, drive))
+    out = {}
+    for skip, _ in RATES:
+        table = np.array([scores[name, skip] for name in CANDIDATES])  # (candidates, drives)
+        solved = ~np.isnan(table).any(axis=0)  # drives every candidate solved: the means compare like with like
+        means = {name: float(np.mean(row[solved])) for name, row in zip(CANDIDATES, table, strict=True)}
+        failed = {name: int(np.isnan(row).sum()) for name, row in zip(CANDIDATES, table, strict=True)}
+        fewest = min(failed.values())
+        chosen = min((n for n in CANDIDATES if failed[n] == fewest), key=means.get)
+        out[skip] = {"mean_ate_m": means, "failed_drives": failed, "drives_compared": int(solved.sum()),
+                     "chosen": chosen}  # fmt: skip
+        for name in CANDIDATES:
+            print(f"validation drives, gps_skip {skip}: {name}: mean ATE {means[name]:.3f} m over {solved.sum()} "
+                  f"drives ({failed[name]} of {table.shape[1]} drives stopped indeterminate)")
+        print(f"validation drives, gps_skip {skip}: chosen: {chosen}")
+    return out
+
+
 def model_inputs(example, checkpoint: str, config_path: str, data: Path, seq, raw) -> tuple[Inputs, dict]:
     """The model's samples on GTSAM's file, its mean correction on the training drives, its calibration (NSE over
     1 s and 10 s on this drive and the validation drives) and the validation drives' ML noise scales."""
@@ -204,6 +297,14 @@ def main() -> None:
     inputs, report = model_inputs(example, args.checkpoint, args.config, data, seq, raw)
     for key, value in report.items():
         print(f"{key}: {np.array2string(np.asarray(value), precision=5)}")
+    import tempfile
+
+    from learned_imu.config import load_config
+    from learned_imu.network.checkpoint import model_from_checkpoint
+
+    with tempfile.TemporaryDirectory() as scratch:
+        model, config = model_from_checkpoint(args.checkpoint)[0], load_config(args.config, data_root=data)
+        choice = choose_on_validation(example, model, config, inputs, data, Path(scratch))
     for variant in variants(example):
         for skip, wait in RATES:
             start = time.perf_counter()
@@ -211,9 +312,17 @@ def main() -> None:
             run = example.run(files, gps_skip=skip, wait=wait, samples=variant.samples(inputs, skip), **kwargs)
             add(variant.name, skip, run)
             rows[-1]["seconds"] = time.perf_counter() - start
+            rows[-1]["chosen_on_validation"] = variant.name == choice[skip]["chosen"]
     if args.json:
         extra = {k: np.asarray(v).tolist() for k, v in report.items()}
-        Path(args.json).write_text(json.dumps({"rows": rows, "model": extra}, indent=1))
+        validation = {str(skip): value for skip, value in choice.items()}
+        Path(args.json).write_text(json.dumps({"rows": rows, "model": extra, "validation": validation}, indent=1))
+    for skip, value in choice.items():
+        chosen = next(r for r in rows if r["gps_skip"] == skip and r["row"] == value["chosen"])
+        script = next(r for r in rows if r["gps_skip"] == skip and r["row"].startswith("GTSAM's"))
+        print(f"gps_skip {skip}: the row the validation drives chose, {chosen['row']}: RMSE "
+              f"{chosen['rmse_to_gps_m']:.3f} / ATE {chosen['ate_m']:.3f} m against GTSAM's script "
+              f"{script['rmse_to_gps_m']:.3f} / {script['ate_m']:.3f} m")
 
 
 if __name__ == "__main__":

@@ -251,6 +251,8 @@ def build_sequence(
     """
     line_of = line_of or (lambda row: None)
     gravity = np.asarray(gravity, dtype=np.float64)
+    if len(t) < 2:  # one sample has no time step: nothing downstream (windows, preintegration, fusion) can use it
+        raise DataError(source, "time", f"{len(t)} IMU sample(s) after reading; a sequence needs at least 2")
     if checks.check_units:
         _checks.check_units(acc, gyro, source)
     rows = np.arange(t.shape[0])

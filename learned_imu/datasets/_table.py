@@ -8,6 +8,7 @@ every line of the file, header and comments included).
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
@@ -173,9 +174,21 @@ def _first_bad_line(path: Path, skip: int, delimiter: str | None, comments: str 
             return number, f"expected {ncols} columns, got {len(tokens)} (truncated or malformed line)"
         for col, token in enumerate(tokens):
             if not _is_number(token):
-                what = "empty value" if not token else f"{token!r} is not a number"
+                what = "empty value" if not token else f"{token!r} is not a number{_separator_hint(token, delimiter)}"
                 return number, f"column {col}: {what}"
     return None
+
+
+SEPARATORS = {";": "';'", "\t": "'\\t'", " ": "None (any white space)", ",": "','"}
+
+
+def _separator_hint(token: str, delimiter: str | None) -> str:
+    """'; the line looks ;-separated: pass delimiter=...' when ``token`` is numbers joined by another separator."""
+    for separator, option in SEPARATORS.items():
+        parts = token.split(separator) if separator != " " else token.split()
+        if separator != delimiter and len(parts) > 1 and all(_is_number(part.strip()) for part in parts):
+            return f" (the line looks {separator!r}-separated: pass delimiter={option})"
+    return ""
 
 
 def read_table(
@@ -201,10 +214,18 @@ def read_table(
     if not path.is_file():
         raise DataError(path, field, "file not found")
     check_input_size(path, field)
+    if delimiter == "":
+        raise DataError(path, "delimiter", "an empty delimiter; give the column separator, or None for any white space")
+    with open(path, "rb") as f:
+        start = f.read(4096)
+    if start[:2] in (b"\xff\xfe", b"\xfe\xff") or start.count(b"\x00") > len(start) // 4:
+        raise DataError(path, field, "the file is UTF-16 (or binary), not text in UTF-8: save it as UTF-8 (CSV)")
     names, skip = _find_header(path, delimiter, comments, header)
     try:
-        data = np.loadtxt(path, delimiter=delimiter, comments=comments, skiprows=skip, ndmin=2, dtype=np.float64,
-                          encoding="utf-8-sig")
+        with warnings.catch_warnings():  # an empty file: "no data rows" below says it
+            warnings.filterwarnings("ignore", "loadtxt: input contained no data", UserWarning)
+            data = np.loadtxt(path, delimiter=delimiter, comments=comments, skiprows=skip, ndmin=2, dtype=np.float64,
+                              encoding="utf-8-sig")
     except ValueError as err:
         bad = _first_bad_line(path, skip, delimiter, comments)
         if bad is not None:

@@ -26,7 +26,7 @@ from learned_imu.datasets._checks import DEG, STANDARD_GRAVITY, check_timestamps
 from learned_imu.datasets._rotations import QUAT_ORDERS
 from learned_imu.datasets._table import ColumnKey, read_table
 from learned_imu.datasets.sequence import ImuSequence
-from learned_imu.errors import DataError
+from learned_imu.errors import ConfigError, DataError
 
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}  # seconds per unit
 GYRO_UNITS = {"rad/s": 1.0, "deg/s": DEG}  # rad/s per unit
@@ -36,7 +36,7 @@ GRAVITY = 9.81
 
 def _unit(table: dict[str, float], value: str, option: str) -> float:
     if value not in table:
-        raise ValueError(f"{option} must be one of {tuple(table)}, got {value!r}")
+        raise ConfigError(f"reader option {option!r}: expected one of {', '.join(table)}, got {value!r}")
     return table[value]
 
 
@@ -44,7 +44,8 @@ def _keys(keys: Sequence[ColumnKey] | None, count: int, option: str) -> list[Col
     if keys is None:
         return None
     if isinstance(keys, str | int) or len(keys) != count:
-        raise ValueError(f"{option} must list {count} columns, got {keys!r}")
+        raise ConfigError(f"reader option {option!r}: expected {count} columns (header names or 0-based indices, "
+                          f"e.g. {option}=a,b,c on the command line), got {keys!r}")  # fmt: skip
     return list(keys)
 
 
@@ -111,9 +112,10 @@ def read_csv(
     gyro_keys, acc_keys = _keys(gyro, 3, "gyro"), _keys(acc, 3, "acc")
     pos_keys, quat_keys, vel_keys = _keys(gt_pos, 3, "gt_pos"), _keys(gt_quat, 4, "gt_quat"), _keys(gt_vel, 3, "gt_vel")
     if (pos_keys is None) != (quat_keys is None):
-        raise ValueError("ground truth needs both gt_pos and gt_quat (or neither)")
+        given, missing = ("gt_pos", "gt_quat") if quat_keys is None else ("gt_quat", "gt_pos")
+        raise ConfigError(f"reader option {missing!r}: ground truth needs both gt_pos and gt_quat; only {given} given")
     if quat_order not in QUAT_ORDERS:
-        raise ValueError(f"quat_order must be one of {QUAT_ORDERS}, got {quat_order!r}")
+        raise ConfigError(f"reader option 'quat_order': expected one of {', '.join(QUAT_ORDERS)}, got {quat_order!r}")
 
     path = Path(path)
     table = read_table(path, delimiter=delimiter, comments=comments, header=header)

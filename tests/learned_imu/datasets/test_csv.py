@@ -10,7 +10,7 @@ from learned_imu.datasets import ReadChecks
 from learned_imu.datasets._rotations import matrix_to_quat_wxyz
 from learned_imu.datasets.csv import read_csv
 from learned_imu.datasets.euroc import read_euroc
-from learned_imu.errors import DataError
+from learned_imu.errors import ConfigError, DataError
 
 HEADER = "stamp_ms,ax_g,ay_g,az_g,wx_dps,wy_dps,wz_dps,px,py,pz,qx,qy,qz,qw"
 NAMED = {
@@ -111,15 +111,41 @@ def test_malformed_line_and_unknown_column(v102, tmp_path):
         read_csv(path, **{**NAMED, "acc": ("ax", "ay_g", "az_g")})
 
 
-def test_bad_options_raise_value_errors(tmp_path):
+def test_bad_options_are_config_errors_naming_the_option(tmp_path):
     path = tmp_path / "imu.csv"
     path.write_text("0,0,0,0,0,0,9.81\n")
-    with pytest.raises(ValueError, match="time_unit must be one of"):
+    with pytest.raises(ConfigError, match="reader option 'time_unit': expected one of s, ms, us, ns"):
         read_csv(path, time_unit="min")
-    with pytest.raises(ValueError, match="both gt_pos and gt_quat"):
+    with pytest.raises(ConfigError, match="reader option 'gt_quat': ground truth needs both gt_pos and gt_quat"):
         read_csv(path, gt_pos=(7, 8, 9))
-    with pytest.raises(ValueError, match="gyro must list 3 columns"):
+    with pytest.raises(ConfigError, match=r"reader option 'gyro': expected 3 columns .* got \(1, 2\)"):
         read_csv(path, gyro=(1, 2))
+    with pytest.raises(DataError, match="field 'delimiter': an empty delimiter"):
+        read_csv(path, delimiter="")
+
+
+ROWS = ["t,gx,gy,gz,ax,ay,az"] + [f"{0.005 * i:.3f},0.1,0.0,0.0,0.0,0.0,9.81" for i in range(400)]
+
+
+@pytest.mark.parametrize(
+    "name, content, field, message",
+    [
+        ("semicolons", "\n".join(r.replace(",", ";") for r in ROWS), "file", "looks ';'-separated: pass delimiter=';'"),
+        ("tabs", "\n".join(r.replace(",", "\t") for r in ROWS), "file", r"looks '\\t'-separated"),
+        ("one sample", "\n".join(ROWS[:2]), "time", "1 IMU sample"),
+        ("UTF-16", None, "file", "UTF-16 .* save it as UTF-8"),
+    ],
+)
+def test_a_table_read_wrongly_says_what_to_change(tmp_path, name, content, field, message):
+    """Mistakes in the file itself: the refusal names the file, the field and what to change (issue 28, part 3)."""
+    path = tmp_path / "imu.csv"
+    if content is None:
+        path.write_bytes("\n".join(ROWS).encode("utf-16"))
+    else:
+        path.write_text(content + "\n")
+    with pytest.raises(DataError, match=message) as err:
+        read_csv(path)
+    assert err.value.field == field and str(path) in str(err.value)
 
 
 def test_whitespace_table_without_header_by_index(shared_data):

@@ -263,12 +263,41 @@ def load_config(path: str | Path, data_root: str | Path | None = None) -> Experi
     return dataclasses.replace(config, data=dataclasses.replace(config.data, root=str(root.resolve())))
 
 
+class UniqueKeyLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` (plain data only, as ``yaml.safe_load``) that refuses a key given twice in one mapping:
+    PyYAML keeps the last one without a word, so ``epochs: 3`` above a forgotten ``epochs: 30`` trained 30."""
+
+
+def _unique_mapping(loader: UniqueKeyLoader, node: yaml.MappingNode, deep: bool = False) -> dict:
+    seen: dict = {}
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=True)
+        try:
+            first = seen.setdefault(key, key_node.start_mark.line + 1)
+        except TypeError:  # an unhashable key: the base constructor refuses it with its own message
+            continue
+        if first != key_node.start_mark.line + 1:
+            raise _RepeatedKey(f"key {key!r} given twice (lines {first} and {key_node.start_mark.line + 1}); YAML "
+                               "would keep the second without a word: remove one")  # fmt: skip
+    return loader.construct_mapping(node, deep=deep)
+
+
+class _RepeatedKey(yaml.YAMLError):
+    pass
+
+
+UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _unique_mapping)
+
+
 def read_yaml(path: Path):
-    """``yaml.safe_load`` of a config file; unreadable files and YAML errors are ``ConfigError``s naming it."""
+    """A config file as plain data (``UniqueKeyLoader``: ``yaml.safe_load``'s loader, a repeated key refused);
+    unreadable files and YAML errors are ``ConfigError``s naming it."""
     try:
-        return yaml.safe_load(path.read_text())
+        return yaml.load(path.read_text(), Loader=UniqueKeyLoader)  # noqa: S506 (a SafeLoader subclass)
     except OSError as error:
         raise ConfigError(f"{path}: cannot read the config: {error.strerror}") from error
+    except _RepeatedKey as error:
+        raise ConfigError(f"{path}: {error}") from None
     except yaml.YAMLError as error:
         raise ConfigError(f"{path}: not valid YAML: {error}") from error
 

@@ -70,6 +70,19 @@ def test_bad_keys_are_named(tmp_path, extra, message):
     assert str(path) in str(info.value)
 
 
+def test_a_key_given_twice_is_refused_naming_both_lines(tmp_path):
+    """PyYAML keeps the last of two equal keys without a word: a forgotten ``epochs: 30`` below ``epochs: 3`` trained
+    30 epochs. Refused, in nested mappings and at the top, naming both lines."""
+    text = "name: t\ndata:\n  train: [{dataset: simulator}]\n  val: [{dataset: simulator}]\ntrain:\n  epochs: 3\n"
+    with pytest.raises(ConfigError, match=r"key 'epochs' given twice \(lines 6 and 7\).*remove one"):
+        load_config(write(tmp_path, text + "  epochs: 30\n"))
+    with pytest.raises(ConfigError, match=r"key 'name' given twice \(lines 1 and 7\)"):
+        load_config(write(tmp_path, text + "name: u\n"))
+    with pytest.raises(ConfigError, match=r"key 'dataset' given twice"):
+        load_config(write(tmp_path, text.replace("train: [{dataset: simulator}]", "train: [{dataset: a, dataset: b}]")))
+    assert load_config(write(tmp_path, text)).train.epochs == 3
+
+
 def test_missing_key_and_bad_yaml(tmp_path):
     with pytest.raises(ConfigError, match="missing key 'data.val'"):
         load_config(write(tmp_path, "name: t\ndata:\n  train: [{dataset: simulator}]\n"))

@@ -271,14 +271,15 @@ class UniqueKeyLoader(yaml.SafeLoader):
 def _unique_mapping(loader: UniqueKeyLoader, node: yaml.MappingNode, deep: bool = False) -> dict:
     seen: dict = {}
     for key_node, _ in node.value:
-        key = loader.construct_object(key_node, deep=True)
+        key, line = loader.construct_object(key_node, deep=True), key_node.start_mark.line + 1
         try:
-            first = seen.setdefault(key, key_node.start_mark.line + 1)
+            repeated = key in seen
         except TypeError:  # an unhashable key: the base constructor refuses it with its own message
             continue
-        if first != key_node.start_mark.line + 1:
-            raise _RepeatedKey(f"key {key!r} given twice (lines {first} and {key_node.start_mark.line + 1}); YAML "
-                               "would keep the second without a word: remove one")  # fmt: skip
+        if repeated:
+            raise _RepeatedKey(f"key {key!r} given twice (lines {seen[key]} and {line}); YAML would keep the second "
+                               "without a word: remove one")  # fmt: skip
+        seen[key] = line
     return loader.construct_mapping(node, deep=deep)
 
 

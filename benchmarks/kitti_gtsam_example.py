@@ -142,7 +142,10 @@ def variants(example) -> list[Variant]:
     ]
 
 
-# the rows that may stand for the learned model (names of ``variants``); the validation drives choose among them
+# the rows that may stand for the learned model (names of ``variants``); the validation drives choose among them,
+# and score the script's own settings beside them (REFERENCE, not a candidate)
+REFERENCE = "mirror, raw IMU (the script's settings)"
+DIVERGED_M = 100.0  # a validation run this far off its drive's truth diverged (few fixes on a short drive): failed
 CANDIDATES = (
     "mirror + KITTI model (corrections, learned noise)",
     "model's corrections, the script's noise",
@@ -194,7 +197,8 @@ def choose_on_validation(example, model, config, inputs: Inputs, data: Path, scr
 
     calibration = example.read_calibration(data / "kitti_gtsam" / METADATA)
     by_variant = {v.name: v for v in variants(example)}
-    scores = {(name, skip): [] for name in CANDIDATES for skip, _ in RATES}
+    scored = (REFERENCE, *CANDIDATES)
+    scores = {(name, skip): [] for name in scored for skip, _ in RATES}
     for i, drive in enumerate(load_sequences(config.data.val, config.data.root)):
         folder = scratch / f"val{i}"
         write_gtsam_files(drive, folder, data / "kitti_gtsam" / METADATA)
@@ -203,7 +207,7 @@ def choose_on_validation(example, model, config, inputs: Inputs, data: Path, scr
         samples = example.Samples(*(np.asarray(x.numpy(), dtype=float) for x in (out.gyro, out.acc, out.gyro_cov,
                                                                                      out.acc_cov)))  # fmt: skip
         here = dataclasses.replace(inputs, raw=example.raw_samples(seq, calibration), model=samples)
-        for name in CANDIDATES:
+        for name in scored:
             variant = by_variant[name]
             for skip, wait in RATES:
                 kwargs = {"bias_prior_sigmas": variant.bias_prior_sigmas} if variant.bias_prior_sigmas else {}
@@ -212,20 +216,22 @@ def choose_on_validation(example, model, config, inputs: Inputs, data: Path, scr
                 except RuntimeError:  # the script's loop stops (indeterminate) on some short drives
                     scores[name, skip].append(np.nan)
                 else:
-                    scores[name, skip].append(drive_ate_m(run, drive))
+                    ate = drive_ate_m(run, drive)
+                    scores[name, skip].append(ate if ate < DIVERGED_M else np.nan)
     out = {}
     for skip, _ in RATES:
-        table = np.array([scores[name, skip] for name in CANDIDATES])  # (candidates, drives)
-        solved = ~np.isnan(table).any(axis=0)  # drives every candidate solved: the means compare like with like
-        means = {name: float(np.mean(row[solved])) for name, row in zip(CANDIDATES, table, strict=True)}
-        failed = {name: int(np.isnan(row).sum()) for name, row in zip(CANDIDATES, table, strict=True)}
-        fewest = min(failed.values())
+        table = np.array([scores[name, skip] for name in scored])  # (rows, drives)
+        solved = ~np.isnan(table).any(axis=0)  # drives every row solved: the means compare like with like
+        means = {name: float(np.mean(row[solved])) for name, row in zip(scored, table, strict=True)}
+        failed = {name: int(np.isnan(row).sum()) for name, row in zip(scored, table, strict=True)}
+        fewest = min(failed[n] for n in CANDIDATES)
         chosen = min((n for n in CANDIDATES if failed[n] == fewest), key=means.get)
         out[skip] = {"mean_ate_m": means, "failed_drives": failed, "drives_compared": int(solved.sum()),
+                     "per_drive_ate_m": {n: [float(v) for v in row] for n, row in zip(scored, table, strict=True)},
                      "chosen": chosen}  # fmt: skip
-        for name in CANDIDATES:
+        for name in scored:
             print(f"validation drives, gps_skip {skip}: {name}: mean ATE {means[name]:.3f} m over {solved.sum()} "
-                  f"drives ({failed[name]} of {table.shape[1]} drives stopped indeterminate)")
+                  f"drives ({failed[name]} of {table.shape[1]} drives stopped indeterminate or diverged)")
         print(f"validation drives, gps_skip {skip}: chosen: {chosen}")
     return out
 

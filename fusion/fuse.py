@@ -175,9 +175,12 @@ def _check_noise(sequence: ImuSequence, noise_density: tuple[float, float]) -> N
             log.warning("%s: %s", sequence.source or sequence.name, message)
 
 
-def read_gps_csv(path: str | Path, sigma_m: float | None = None, angle_unit: str = "deg") -> GpsFixes:
+def read_gps_csv(
+    path: str | Path, sigma_m: float | None = None, angle_unit: str = "deg", swap: bool = False
+) -> GpsFixes:
     """GPS fixes from a CSV (module docstring); ``sigma_m`` (per axis) where the file has no sigma column;
-    ``angle_unit``: "deg" (the default) or "rad", how the lat/lon columns are read."""
+    ``angle_unit``: "deg" (the default) or "rad", how the lat/lon columns are read; ``swap``: read the lat column
+    as lon and the lon column as lat (``check_gps_units`` tries it)."""
     if angle_unit not in ANGLE_UNITS:
         raise InputError(f"read_gps_csv: angle_unit must be one of {', '.join(ANGLE_UNITS)}, got {angle_unit!r}")
     from learned_imu.datasets._table import read_table
@@ -204,6 +207,7 @@ def read_gps_csv(path: str | Path, sigma_m: float | None = None, angle_unit: str
         row = int(np.argmax(np.diff(t) <= 0)) + 1
         raise DataError(path, "t", "time must increase from fix to fix", line=table.line_of(row))
     if layout[0] == "lat":
+        pos = pos[:, [1, 0, 2]] if swap else pos
         pos = _enu(np.column_stack([np.degrees(pos[:, :2]), pos[:, 2]]) if angle_unit == "rad" else pos, path)
     sigma = _sigmas(table, names, path, sigma_m)
     return GpsFixes(t=t, pos=pos, sigma=sigma)
@@ -222,19 +226,24 @@ def check_gps_units(sequence: ImuSequence, path: str | Path, fixes: GpsFixes, si
     with lat/lon in radians (lat/lon files), or x/y/z scaled as km or mm (x/y/z files); a ``DataError`` naming the
     columns and the likely unit when another reading leaves ``UNIT_REFUSAL_RATIO`` times less motion unexplained
     (``fusion.gps_units.track_misfit``). Measured on 2011_10_03_drive_0027 (fixes from its ground truth, 0.3 m
-    noise): as read 0.64 m/s, lat/lon written in radians 2.94 m/s, x/y/z written in km 2.99 m/s; GTSAM's own
-    KittiGps_converted.txt 0.30 m/s (tests/fusion/test_fuse.py)."""
+    noise): as read 0.64 m/s, lat/lon written in radians 2.94 m/s, x/y/z written in km 2.99 m/s, lat and lon
+    swapped 2.96 m/s, x and y swapped 2.54 m/s (a mirror image); GTSAM's own KittiGps_converted.txt 0.30 m/s
+    (tests/fusion/test_fuse_mistakes.py)."""
     from fusion.gps_units import track_misfit
 
     as_read = track_misfit(sequence, fixes)
     if as_read is None:
         return
     if gps_file_layout(path) == "lat/lon":
-        alternatives = {"lat/lon in radians": lambda: read_gps_csv(path, sigma_m, angle_unit="rad")}
+        alternatives = {"lat/lon in radians": lambda: read_gps_csv(path, sigma_m, angle_unit="rad"),
+                        "lat and lon swapped": lambda: read_gps_csv(path, sigma_m, swap=True)}  # fmt: skip
         columns = "lat/lon"
     else:
         scaled = lambda f: lambda: GpsFixes(fixes.t, fixes.pos[0] + f * (fixes.pos - fixes.pos[0]), fixes.sigma)  # noqa: E731
-        alternatives = {"x/y/z in km": scaled(1000.0), "x/y/z in mm": scaled(0.001)}
+        # x and y swapped: a mirror image, which no rotation of the world frame explains (north-east-down read as
+        # east-north-up also flips z: a rotation, whose gravity the misfit sees)
+        mirrored = lambda: GpsFixes(fixes.t, fixes.pos[:, [1, 0, 2]], fixes.sigma)  # noqa: E731
+        alternatives = {"x/y/z in km": scaled(1000.0), "x/y/z in mm": scaled(0.001), "x and y swapped": mirrored}
         columns = "x/y/z"
     for unit, reading in alternatives.items():
         try:

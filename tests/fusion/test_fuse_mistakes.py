@@ -40,7 +40,9 @@ def gps_files(folder, seq):
     t = seq.t[index]
     tables = {"deg": ("t,lat,lon,alt", np.c_[t, lat, lon, alt]),
               "rad": ("t,lat,lon,alt", np.c_[t, np.radians(lat), np.radians(lon), alt]),
-              "m": ("t,x,y,z", np.c_[t, pos]), "km": ("t,x,y,z", np.c_[t, pos / 1000.0])}  # fmt: skip
+              "swapped": ("t,lat,lon,alt", np.c_[t, lon, lat, alt]),
+              "m": ("t,x,y,z", np.c_[t, pos]), "km": ("t,x,y,z", np.c_[t, pos / 1000.0]),
+              "xy": ("t,x,y,z", np.c_[t, pos[:, [1, 0, 2]]])}  # fmt: skip
     paths = {}
     for name, (header, rows) in tables.items():
         paths[name] = folder / f"{name}.csv"
@@ -64,6 +66,11 @@ def test_gps_in_the_wrong_unit_is_refused_naming_the_columns_and_the_unit(drive,
         check_gps_units(drive, paths["rad"], read_gps_csv(paths["rad"]))  # 2.94 against 0.64 m/s re-read
     with pytest.raises(DataError, match=r"field 'x/y/z'.*x/y/z in km\?"):
         check_gps_units(drive, paths["km"], read_gps_csv(paths["km"]))
+    # columns swapped: a mirror image of the track, which no heading explains
+    with pytest.raises(DataError, match=r"field 'lat/lon'.*lat and lon swapped\?"):
+        check_gps_units(drive, paths["swapped"], read_gps_csv(paths["swapped"]))
+    with pytest.raises(DataError, match=r"field 'x/y/z'.*x and y swapped\?"):
+        check_gps_units(drive, paths["xy"], read_gps_csv(paths["xy"]))
     radians = read_gps_csv(paths["rad"], angle_unit="rad")  # the right reading equals the degree file's
     np.testing.assert_allclose(radians.pos, read_gps_csv(paths["deg"]).pos, atol=1e-4)  # 12 decimals of a radian: 6 um
 

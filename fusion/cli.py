@@ -126,6 +126,10 @@ def fuse(
         None, help="acc sigma, m/s^2/sqrt(Hz), without --checkpoint only (refused with it); default 0.08"
     ),
     reader_option: list[str] = typer.Option(None, help=READER_OPTION_HELP),  # noqa: B008 (typer reads repeats as a list)
+    gps_time_offset: float = typer.Option(
+        0.0, help="seconds the GPS clock runs ahead of the IMU's, subtracted from every fix time (a GPS track that "
+        "fits the IMU far better shifted is warned about with its estimated offset)",
+    ),
 ) -> None:
     """Fuse a user's own IMU + GPS log: robust GPS factors, learned (or fixed) IMU factors, optional bias states.
 
@@ -138,10 +142,12 @@ def fuse(
     mm) are refused."""
     from pathlib import Path
 
-    from fusion.fuse import BiasStates, check_gps_units, fuse, read_gps_csv, write_outputs
+    from fusion.fuse import BiasStates, check_gps_clock, check_gps_units, fuse, read_gps_csv, write_outputs
 
     if gps_every < 1:
         raise typer.BadParameter(f"--gps-every must be >= 1, got {gps_every}")
+    if not (math.isfinite(gps_time_offset) and abs(gps_time_offset) <= 3600.0):
+        raise typer.BadParameter(f"--gps-time-offset: expected seconds within +-3600, got {gps_time_offset}")
     _check_outputs(folders={"--out": out})
     given = (gyro_noise_density, acc_noise_density)
     if checkpoint and any(v is not None for v in given):
@@ -170,6 +176,11 @@ def fuse(
         check_gps_units(sequence, gps, fixes, gps_sigma)
     if fixes is None:
         raise typer.BadParameter(f"{path}: the log has no GPS fixes; pass --gps FILE")
+    if gps_time_offset:
+        import dataclasses
+
+        fixes = dataclasses.replace(fixes, t=fixes.t - gps_time_offset)
+    check_gps_clock(sequence, gps or path, fixes)
     used = fixes[::gps_every]
     model = None
     if checkpoint:

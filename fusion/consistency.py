@@ -89,16 +89,20 @@ def residuals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> dict[s
     try:
         marginals = gtsam.Marginals(graph, values)
     except RuntimeError:  # an indeterminate graph: no redundancy; the dimensions stand in (an upper bound)
-        marginals = None
+        marginals = None  # (and the check below the high side only: a low chi-square per dimension is no evidence)
     dims = values.dims()
-    sums: dict[str, list] = {}
+    rows = []  # (kind, dim, chi2) per factor
     for factor in factors:
         chi2 = _chi2(factor, values)
-        if chi2 is None:
-            continue
-        dim = int(factor.dim())
-        dof = dim if marginals is None else _redundancy(factor, values, marginals, known, dims)
-        entry = sums.setdefault(kind_of(factor), [0, 0, 0.0, 0.0])
+        if chi2 is not None:
+            rows.append((factor, kind_of(factor), int(factor.dim()), chi2))
+    try:  # GTSAM may find the graph indeterminate only when a joint marginal is asked for
+        dofs = [dim if marginals is None else _redundancy(f, values, marginals, known, dims) for f, _, dim, _ in rows]
+    except RuntimeError:
+        dofs = [dim for _, _, dim, _ in rows]
+    sums: dict[str, list] = {}
+    for (_, kind, dim, chi2), dof in zip(rows, dofs, strict=True):
+        entry = sums.setdefault(kind, [0, 0, 0.0, 0.0])
         for j, value in enumerate((1, dim, dof, chi2)):
             entry[j] += value
     return {kind: Residual(kind, n, dim, dof, chi2) for kind, (n, dim, dof, chi2) in sums.items()}

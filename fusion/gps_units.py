@@ -22,13 +22,16 @@ SPACING_S = 2.0  # fixes at least this far apart (GPS noise over shorter spans s
 STRETCH_TRIPLES = 6  # triples sharing one attitude unknown (gyro drift over ~2 x 6 x SPACING_S is small)
 
 
-def track_misfit(sequence: ImuSequence, fixes: GpsFixes) -> float | None:
+CLOCK_SEARCH_S = 5.0  # GPS clock offsets searched, +- s
+CLOCK_STEP_S = 0.1
+CLOCK_RATIO = 2.0  # the best offset explains the track this many times better than as read: a clock offset
+CLOCK_MIN_S = 0.3  # smaller best offsets are not reported (the fixes' association to IMU samples moves the misfit)
+
+
+def track_misfit(sequence: ImuSequence, fixes: GpsFixes, _deltas=None) -> float | None:
     """RMS, m/s, of the GPS track's velocity changes that the IMU cannot explain (module docstring); None when
     the fixes inside the IMU's span make fewer than one stretch of triples."""
-    import torch
-
-    from learned_imu.geometry.preintegration import preintegrate
-
+    vel, prefix, elapsed = _deltas or _prefix(sequence)
     inside = (fixes.t >= sequence.t[0]) & (fixes.t < sequence.t[-1])
     t, pos = fixes.t[inside], fixes.pos[inside]
     keep = [0]
@@ -38,10 +41,6 @@ def track_misfit(sequence: ImuSequence, fixes: GpsFixes) -> float | None:
     if len(keep) < STRETCH_TRIPLES + 2:
         return None
     sample = np.clip(np.searchsorted(sequence.t, t[keep]), 0, len(sequence.t) - 1)
-    deltas = preintegrate(torch.as_tensor(sequence.gyro), torch.as_tensor(sequence.acc), torch.as_tensor(sequence.dt))
-    vel = np.concatenate([np.zeros((1, 3)), deltas.vel.numpy()])
-    prefix = np.concatenate([np.zeros((1, 3)), deltas.pos.numpy()])
-    elapsed = np.concatenate([[0.0], deltas.dt.numpy()])  # index n: at sample n, in the frame of sample 0
     a, b, c = sample[:-2], sample[1:-1], sample[2:]
     t1, t2 = (elapsed[b] - elapsed[a])[:, None], (elapsed[c] - elapsed[b])[:, None]
     # in the frame of sample 0: R_i m = R_0i dv_ij - R_0i dp_ij / T1 + R_0j dp_jk / T2
@@ -58,3 +57,37 @@ def track_misfit(sequence: ImuSequence, fixes: GpsFixes) -> float | None:
         r = w @ np.diag([1.0, 1.0, np.linalg.det(w @ vt)]) @ vt  # world <- frame of sample 0 for this stretch
         residual.append(yy - uu @ r.T)
     return float(np.sqrt(np.mean(np.sum(np.concatenate(residual) ** 2, axis=1))))
+
+
+def clock_offset(
+    sequence: ImuSequence, fixes: GpsFixes, search_s: float = CLOCK_SEARCH_S
+) -> tuple[float, float, float]:
+    """(offset, misfit there, misfit as read): the shift of the GPS times, s, within +-``search_s`` (steps of
+    ``CLOCK_STEP_S``) that lets the IMU explain the track best (``track_misfit``, m/s); subtract it from the GPS
+    times. A clock offset of the fixes shows as a misfit whose minimum is away from 0 (KITTI 0027 with fixes 0.5 /
+    1 / 2 s late: 1.52 / 2.18 / 2.18 m/s as read, 0.64 at the offset; tests/fusion/test_fuse_mistakes.py).
+    (nan, nan, nan) when too few fixes lie in the IMU's span."""
+    deltas = _prefix(sequence)
+    as_read = track_misfit(sequence, fixes, deltas)
+    if as_read is None:
+        return (np.nan, np.nan, np.nan)
+    best, best_misfit = 0.0, as_read
+    for offset in np.arange(-search_s, search_s + CLOCK_STEP_S / 2, CLOCK_STEP_S):
+        misfit = track_misfit(sequence, GpsFixes(fixes.t - offset, fixes.pos, fixes.sigma), deltas)
+        if misfit is not None and misfit < best_misfit:
+            best, best_misfit = float(offset), misfit
+    return best, best_misfit, as_read
+
+
+def _prefix(sequence: ImuSequence) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The IMU's preintegrated velocity and position from sample 0 and the time elapsed, per sample (index n: at
+    sample n, in the frame of sample 0)."""
+    import torch
+
+    from learned_imu.geometry.preintegration import preintegrate
+
+    deltas = preintegrate(torch.as_tensor(sequence.gyro), torch.as_tensor(sequence.acc), torch.as_tensor(sequence.dt))
+    vel = np.concatenate([np.zeros((1, 3)), deltas.vel.numpy()])
+    prefix = np.concatenate([np.zeros((1, 3)), deltas.pos.numpy()])
+    elapsed = np.concatenate([[0.0], deltas.dt.numpy()])
+    return vel, prefix, elapsed

@@ -19,6 +19,8 @@ positions, or a window-by-window solution; without a known first state, an initi
 
 from __future__ import annotations
 
+import logging
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -50,6 +52,8 @@ from learned_imu.datasets._rotations import matrix_to_quat_wxyz
 from learned_imu.datasets.sequence import GpsFixes
 from learned_imu.errors import ConfigError, InputError
 from learned_imu.io import atomic_file
+
+log = logging.getLogger(__name__)
 
 X, V, B = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V, gtsam.symbol_shorthand.B
 
@@ -358,9 +362,20 @@ def trajectory_of(values: gtsam.Values, times: np.ndarray, marginals: gtsam.Marg
 
 
 def with_marginals(solution: Solution) -> Trajectory:
-    """The solution's trajectory with the marginal position covariance of every keyframe."""
-    marginals = gtsam.Marginals(solution.graph, solution.values)
-    return trajectory_of(solution.values, solution.trajectory.t, marginals)
+    """The solution's trajectory with the marginal position covariance of every keyframe; NaN covariances, with a
+    warning, where GTSAM finds the graph too poorly conditioned for them (e.g. minutes of keyframes after the last
+    GPS fix: the solution stands, its uncertainty cannot be computed)."""
+    try:
+        marginals = gtsam.Marginals(solution.graph, solution.values)
+        return trajectory_of(solution.values, solution.trajectory.t, marginals)
+    except RuntimeError as error:
+        near = re.search(r"Symbol: (\w+)", str(error))
+        log.warning("marginal covariances not computed (NaN in marginals.npz, no ellipsoids): GTSAM finds the graph "
+                    "nearly indeterminate%s; keyframes far from every GPS fix do that", f" near {near.group(1)}"
+                    if near else "")  # fmt: skip
+    trajectory = solution.trajectory
+    nan = np.full((len(trajectory.t), 3, 3), np.nan)
+    return Trajectory(trajectory.t, trajectory.rot, trajectory.pos, trajectory.vel, nan)
 
 
 def _nearest_keyframes(times: np.ndarray, gps_t: np.ndarray) -> np.ndarray:

@@ -54,10 +54,12 @@ def _at_times(sequence: ImuSequence, pos: np.ndarray, times: np.ndarray) -> np.n
 
 
 def marginal_track(solution) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(t, pos, pos_cov) of a solution's keyframes, the marginals computed once per solution."""
+    """(t, pos, pos_cov) of a solution's keyframes, the marginals computed once per solution (pos_cov None where
+    they could not be: ``with_marginals``)."""
     if solution not in _MARGINALS:
         trajectory = with_marginals(solution)
-        _MARGINALS[solution] = (trajectory.t, trajectory.pos, trajectory.pos_cov)
+        cov = trajectory.pos_cov if np.all(np.isfinite(trajectory.pos_cov)) else None
+        _MARGINALS[solution] = (trajectory.t, trajectory.pos, cov)
     return _MARGINALS[solution]
 
 

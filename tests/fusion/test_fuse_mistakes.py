@@ -75,6 +75,77 @@ def test_gps_in_the_wrong_unit_is_refused_naming_the_columns_and_the_unit(drive,
     np.testing.assert_allclose(radians.pos, read_gps_csv(paths["deg"]).pos, atol=1e-4)  # 12 decimals of a radian: 6 um
 
 
+@pytest.mark.parametrize("late", [0.5, 1.0, 2.0, -1.5])
+def test_a_gps_clock_offset_is_estimated_and_warned_about(drive, late, caplog):
+    """Fixes some seconds late (or early) against the IMU's clock: the offset at which the IMU explains the track
+    best is found to 0.1 s and named with the option that removes it; on time, nothing is said. (The OXTS
+    positions these fixes come from fit the drive's IMU best 0.1 s later themselves: the INS solution's latency,
+    seen in GTSAM's GPS file too; below the 0.3-s floor.)"""
+    import re
+
+    from fusion.fuse import check_gps_clock
+    from fusion.gps_units import clock_offset
+
+    index = np.arange(0, len(drive.t), 100)
+    index = index[drive.gt.valid[index]]
+    pos = drive.gt.pos[index] + np.random.default_rng(0).normal(0.0, 0.3, (len(index), 3))
+    on_time = GpsFixes(drive.t[index], pos, 0.3)
+    own = clock_offset(drive, on_time)[0]
+    assert abs(own) <= 0.1 + 1e-9  # measured 0.1
+    with caplog.at_level(logging.WARNING):
+        assert check_gps_clock(drive, "on time", on_time) is None
+        assert "GPS fixes look" not in caplog.text
+        offset = check_gps_clock(drive, "shifted", GpsFixes(drive.t[index] + late, pos, 0.3))
+    assert offset - own == pytest.approx(late, abs=0.1 + 1e-9)
+    side = "late" if late > 0 else "early"
+    said = re.search(rf"GPS fixes look ([0-9.]+) s {side}.*--gps-time-offset (-?[0-9.]+)", caplog.text)
+    assert said and float(said.group(1)) == pytest.approx(abs(offset), abs=0.05)
+    assert float(said.group(2)) == pytest.approx(offset, abs=0.05)
+
+
+def test_gps_time_offset_shifts_the_fixes(shared_data, tmp_path, capsys, monkeypatch, caplog):
+    """``--gps-time-offset`` takes the estimate: the late file fused with it ends where the on-time file does."""
+    from learned_imu.datasets import read_sequence
+
+    seq = read_sequence("kitti_raw", shared_data / DRIVE, on_backward="drop", on_duplicate="drop", on_gap="keep")
+    paths = gps_files(tmp_path, seq)
+    rows = np.loadtxt(paths["m"], delimiter=",", skiprows=1)
+    rows[:, 0] += 2.0
+    late = tmp_path / "late.csv"
+    np.savetxt(late, rows, delimiter=",", header="t,x,y,z", comments="", fmt="%.12f")
+    summaries = {}
+    for name, extra in (("as read", []), ("shifted", ["--gps-time-offset", "2"])):
+        with caplog.at_level(logging.WARNING):
+            caplog.clear()
+            code, err = run(capsys, monkeypatch, "fuse", "--dataset", "kitti_raw", "--path", shared_data / DRIVE,
+                            *REPAIR, "--gps", late, "--gps-every", "5", "--out", tmp_path / name, *extra)  # fmt: skip
+        assert code == 0, err
+        summaries[name] = json.loads((tmp_path / name / "summary.json").read_text())
+        assert ("GPS fixes look 2.1 s late" in caplog.text) == (name == "as read")  # 2 s and the OXTS's 0.1
+    assert summaries["shifted"]["ate_aligned_m"] < 0.5 * summaries["as read"]["ate_aligned_m"]
+    code, err = run(capsys, monkeypatch, "fuse", "--dataset", "csv", "--path", "x", "--out", tmp_path / "y",
+                    "--gps-time-offset", "nan")  # fmt: skip
+    assert code == 2 and "--gps-time-offset" in err
+
+
+def test_gps_covering_part_of_the_drive_is_warned_about_and_still_written(drive, tmp_path, caplog):
+    """Fixes for the first 2 of the drive's 8 minutes: a warning names both uncovered spans; the keyframes after the
+    last fix are dead reckoning whose marginals GTSAM cannot compute: NaN covariances with a warning, every file
+    written (it was a traceback)."""
+    from fusion.fuse import fuse, write_outputs
+
+    index = np.arange(0, 12000, 100)
+    index = index[drive.gt.valid[index]]
+    with caplog.at_level(logging.WARNING):
+        result = fuse(drive, GpsFixes(drive.t[index], drive.gt.pos[index], 0.3), keyframe_s=1.0)
+        summary, written = write_outputs(result, tmp_path / "out")
+    assert "the IMU runs 0 s before the first GPS fix and 3" in caplog.text and "dead reckoning" in caplog.text
+    assert "marginal covariances not computed" in caplog.text
+    assert {p.name for p in written} >= {"fused.tum", "marginals.npz", "fused.rrd", "fused.png", "summary.json"}
+    assert np.isnan(np.load(tmp_path / "out" / "marginals.npz")["pos_cov"]).all()
+    assert summary.rmse_to_gps_m < 1.0  # m: where there are fixes, the fit is what it was
+
+
 def test_gtsams_own_gps_file_passes_the_unit_check(shared_data):
     from learned_imu.datasets import read_sequence
 

@@ -58,13 +58,14 @@ class Residual:
     dim: int
     dof: float
     chi2: float
+    exact: bool = True  # False: the dimensions stood in for the degrees of freedom (no low-side verdict then)
 
     @property
     def per_dof(self) -> float:
         return self.chi2 / self.dof if self.dof > 0 else float("nan")
 
     def to_json_dict(self) -> dict:
-        return {"factors": self.factors, "dim": self.dim, "dof": self.dof, "chi2": self.chi2,
+        return {"factors": self.factors, "dim": self.dim, "dof": self.dof, "dof_exact": self.exact, "chi2": self.chi2,
                 "chi2_per_dof": self.per_dof}  # fmt: skip
 
 
@@ -89,23 +90,24 @@ def residuals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> dict[s
     try:
         marginals = gtsam.Marginals(graph, values)
     except RuntimeError:  # an indeterminate graph: no redundancy; the dimensions stand in (an upper bound)
-        marginals = None  # (and the check below the high side only: a low chi-square per dimension is no evidence)
+        marginals = None  # (and ``check`` judges the high side only: a low chi-square per dimension is no evidence)
     dims = values.dims()
     rows = []  # (kind, dim, chi2) per factor
     for factor in factors:
         chi2 = _chi2(factor, values)
         if chi2 is not None:
             rows.append((factor, kind_of(factor), int(factor.dim()), chi2))
+    exact = marginals is not None
     try:  # GTSAM may find the graph indeterminate only when a joint marginal is asked for
         dofs = [dim if marginals is None else _redundancy(f, values, marginals, known, dims) for f, _, dim, _ in rows]
     except RuntimeError:
-        dofs = [dim for _, _, dim, _ in rows]
+        dofs, exact = [dim for _, _, dim, _ in rows], False
     sums: dict[str, list] = {}
     for (_, kind, dim, chi2), dof in zip(rows, dofs, strict=True):
         entry = sums.setdefault(kind, [0, 0, 0.0, 0.0])
         for j, value in enumerate((1, dim, dof, chi2)):
             entry[j] += value
-    return {kind: Residual(kind, n, dim, dof, chi2) for kind, (n, dim, dof, chi2) in sums.items()}
+    return {kind: Residual(kind, n, dim, dof, chi2, exact) for kind, (n, dim, dof, chi2) in sums.items()}
 
 
 def _redundancy(factor, values: gtsam.Values, marginals: gtsam.Marginals, known: set, dims: dict) -> float:
@@ -142,7 +144,8 @@ def check(found: dict[str, Residual]) -> list[str]:
         value = residual.per_dof
         if kind not in CAUSES or not np.isfinite(value):
             continue
-        side = "high" if value > HIGH else "low" if value < LOW and residual.dof >= LOW_MIN_DOF else None
+        low = value < LOW and residual.exact and residual.dof >= LOW_MIN_DOF
+        side = "high" if value > HIGH else "low" if low else None
         if side is not None:
             bound = f"above {HIGH:g}" if side == "high" else f"below {LOW:g}"
             lines.append(

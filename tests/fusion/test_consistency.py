@@ -38,7 +38,9 @@ def test_chi_square_of_a_gps_factor_is_its_whitened_residual_robust_or_not():
     # (1/0.5)^2 + (4/2)^2 = 8 and (1/0.5)^2 = 4, the robust one by its Gaussian core; the rotation is not observed,
     # so the graph has no marginals and the dimensions stand in for the degrees of freedom
     assert found.factors == 2 and found.dim == 6 and found.dof == 6 and found.chi2 == pytest.approx(12.0)
-    assert found.per_dof == pytest.approx(2.0)
+    assert found.per_dof == pytest.approx(2.0) and not found.exact
+    tiny = dataclasses.replace(found, chi2=1e-6)  # far below LOW per dimension: no verdict without the redundancy
+    assert check({"gps": tiny}) == [] and check({"gps": dataclasses.replace(tiny, exact=True)}) != []
 
 
 def test_degrees_of_freedom_are_the_redundancy_the_states_leave():

@@ -244,8 +244,14 @@ def run_sequence(
             rows.append(PgoRow(setting.name, rate, sequence.name, float(np.mean(ates)), float(np.std(ates)),
                                chi2["gps"], chi2["imu"]))  # fmt: skip
             log.info("%s", asdict(rows[-1]))
-            for message in consistency.check({k: r for k, r in fits[0].items() if k in ("gps", "imu")}):
-                log.warning("%s, %s at %g Hz GPS (seed 0): %s", sequence.name, setting.name, rate, message)
+            for kind in ("gps", "imu"):
+                # the raw samples of the paper's rows carry the sensor's bias on purpose, which a setting without bias
+                # states does not model: their IMU misfit is the ablation's point, said at INFO, not a warning
+                expected = kind == "imu" and setting.samples == "raw" and setting.bias is None
+                for message in consistency.check({kind: fits[0][kind]} if kind in fits[0] else {}):
+                    log.log(logging.INFO if expected else logging.WARNING, "%s, %s at %g Hz GPS (seed 0): %s%s",
+                            sequence.name, setting.name, rate, message,
+                            " (expected: raw samples without bias states)" if expected else "")  # fmt: skip
     return rows, examples
 
 

@@ -49,7 +49,13 @@ from fusion.graph import (
 from fusion.initial import lm_params
 from learned_imu.datasets.sequence import GpsFixes, ImuSequence
 from learned_imu.errors import DataError, InputError
-from learned_imu.export import export_preintegration, fixes_on_samples, keyframes_every, nearest_samples
+from learned_imu.export import (
+    check_keyframe_interval,
+    export_preintegration,
+    fixes_on_samples,
+    keyframes_every,
+    nearest_samples,
+)
 from learned_imu.network.model import Correction
 
 DEFAULT_GPS_SIGMA_M = 1.0  # per axis, when the file gives none
@@ -135,6 +141,7 @@ def fuse(
         sequence = fixes_on_samples(sequence)
         index = np.unique(nearest_samples(sequence, sequence.gps.t)[0])
     else:
+        check_keyframe_interval(sequence, keyframe_s, f"{keyframe_s:g}s")
         index = keyframes_every(sequence, keyframe_s)
     if model is not None:
         correction = correct(model, sequence)

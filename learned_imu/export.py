@@ -36,8 +36,12 @@ SAMPLES_PER_CALL = 100_000  # samples preintegrated per batched call (about 0.5 
 
 
 def keyframes_every(sequence: ImuSequence, interval_s: float) -> np.ndarray:
-    """Keyframe sample indices every ``interval_s`` seconds (the last one at or before the last sample)."""
-    step = max(1, int(round(interval_s / float(np.median(sequence.dt)))))
+    """Keyframe sample indices every ``interval_s`` seconds (the last one at or before the last sample); an interval
+    longer than the sequence gives its first sample alone (callers that need two say so, naming their option)."""
+    if not interval_s > 0:  # NaN too
+        raise InputError(f"keyframes_every: the interval must be a positive number of seconds, got {interval_s}")
+    samples = interval_s / float(np.median(sequence.dt))
+    step = max(1, int(round(min(samples, float(len(sequence))))))  # capped: 1e308 s would overflow an int
     return np.arange(0, len(sequence), step)
 
 
@@ -135,6 +139,16 @@ def _integrate_intervals(out: dict, which: np.ndarray, length: int, keyframe_ind
     out["bias_jacobian"][which] = pre.bias_jacobian[:, -1].numpy()
 
 
+def check_keyframe_interval(sequence: ImuSequence, interval_s: float, spec: str) -> None:
+    """An ``InputError`` naming ``--keyframes`` (as ``spec``), the recording's length and a likely unit when an
+    interval of ``interval_s`` seconds cannot give two keyframes."""
+    span = float(sequence.t[-1] - sequence.t[0])
+    if interval_s > span:
+        hint = " (milliseconds given as seconds?)" if interval_s / 1000.0 <= span else ""
+        raise InputError(f"--keyframes {spec}: the interval is longer than the recording, {span:.4g} s "
+                         f"({len(sequence)} samples): at least two keyframes are needed{hint}")  # fmt: skip
+
+
 def keyframes_from_spec(sequence: ImuSequence, spec: str) -> np.ndarray:
     """Keyframe sample indices from ``"0.1s"`` (every 0.1 s) or a text file of times (s, one per line, IMU clock;
     each maps to the nearest sample, which must lie within half a sample period)."""
@@ -145,11 +159,7 @@ def keyframes_from_spec(sequence: ImuSequence, spec: str) -> np.ndarray:
             raise InputError(f"keyframes: expected an interval like '0.1s' or a file of times, got {spec!r}") from None
         if not (np.isfinite(interval) and interval > 0):
             raise InputError(f"keyframes: interval must be positive, got {spec!r}")
-        span = float(sequence.t[-1] - sequence.t[0])
-        if interval > span:
-            hint = " (milliseconds given as seconds?)" if interval / 1000.0 <= span else ""
-            raise InputError(f"--keyframes {spec}: the interval is longer than the recording, {span:.4g} s "
-                             f"({len(sequence)} samples): at least two keyframes are needed{hint}")  # fmt: skip
+        check_keyframe_interval(sequence, interval, spec)
         return keyframes_every(sequence, interval)
     path = Path(spec)
     if not path.is_file():

@@ -102,6 +102,12 @@ CLI_CASES = {
                           "--gyro-noise-density", "-1.7e-4", "--acc-noise-density", "0.08"], "--gyro-noise-density"),
     "gps every 0": (["fuse", "--dataset", "csv", "--path", "{imu}", "--out", "{tmp}/f", "--gps-every", "0"],
                     "--gps-every must be"),  # fmt: skip
+    "fuse keyframes 5000s": (["fuse", "--dataset", "csv", "--path", "{imu_only}", "--gps", "{gps}", "--out", "{tmp}/f",
+                              "--keyframes", "5000s"], "--keyframes 5000s: the interval is longer than the recording"),
+    "fuse keyframes 1e308s": (["fuse", "--dataset", "csv", "--path", "{imu_only}", "--gps", "{gps}", "--out",
+                               "{tmp}/f", "--keyframes", "1e308s"], "the interval is longer than the recording"),
+    "gps time offset nan": (["fuse", "--dataset", "csv", "--path", "{imu_only}", "--gps", "{gps}", "--out", "{tmp}/f",
+                             "--gps-time-offset", "nan"], "--gps-time-offset: expected seconds within +-3600"),
     "reader option typo": (["evaluate", "--dataset", "csv", "--path", "{imu}", "--reader-option", "sede=1"],
                            "reader option 'sede': csv has no such option"),  # fmt: skip
     "reader option type": (["evaluate", "--dataset", "csv", "--path", "{imu}", "--reader-option", "gravity=up"],
@@ -120,7 +126,7 @@ CLI_CASES = {
 @pytest.mark.parametrize("case", sorted(CLI_CASES))
 def test_cli_values_are_refused_naming_the_flag(case, files, tmp_path, capsys, monkeypatch):
     args, message = CLI_CASES[case]
-    paths = {"imu": files / "imu.csv", "imu_only": files / "imu_only.csv", "tmp": tmp_path}
+    paths = {"imu": files / "imu.csv", "imu_only": files / "imu_only.csv", "gps": files / "gps.csv", "tmp": tmp_path}
     code, err = cli(capsys, monkeypatch, *(a.format(**paths) for a in args))
     assert code == 2
     assert message in " ".join(err.replace("│", " ").split())  # typer boxes and wraps its message

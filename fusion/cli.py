@@ -139,7 +139,7 @@ def fuse(
     fused.rrd (Rerun), fused.png and summary.json (RMSE against the fixes; with ground truth, the ATE after an SE(3)
     alignment and without one). Given noise densities 3x under or 10x over the samples' own white noise are warned
     about, naming both; GPS files that fit the IMU far better in another unit (lat/lon in radians, x/y/z in km or
-    mm) are refused."""
+    mm) or with two columns swapped are refused; a GPS clock offset is warned about with its estimate."""
     from pathlib import Path
 
     from fusion.fuse import BiasStates, check_gps_clock, check_gps_units, fuse, read_gps_csv, write_outputs

@@ -160,9 +160,14 @@ def load_checkpoint(path: str | Path) -> Checkpoint:
         raise DataError(path, "file", "checkpoint not found")
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
-    except (RuntimeError, OSError, pickle.UnpicklingError, zipfile.BadZipFile, EOFError, ValueError) as error:
-        first_line = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-        raise DataError(path, "file", f"not a readable torch checkpoint ({first_line})") from error
+    except pickle.UnpicklingError as error:  # torch's message goes on to advise weights_only=False: not repeated
+        problem = ("torch's safe loader refuses what it holds (objects other than tensors and plain data, or no "
+                   "pickle at all); nothing was unpickled")  # fmt: skip
+        raise DataError(path, "file", f"not a readable torch checkpoint: {problem}") from error
+    except (RuntimeError, OSError, zipfile.BadZipFile, EOFError, ValueError, KeyError, IndexError) as error:
+        # KeyError / IndexError: what the legacy (non-zip) reader raises on a text or other non-checkpoint file
+        problem = f"{type(error).__name__}: {str(error).strip().splitlines()[0]}" if str(error).strip() else ""
+        raise DataError(path, "file", f"not a readable torch checkpoint ({problem or type(error).__name__})") from error
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise DataError(path, "format", f"not an AirIMU checkpoint (expected format '{FORMAT}')")
     version = payload.get("version")

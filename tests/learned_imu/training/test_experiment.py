@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import pickle
 
 import numpy as np
 import pytest
@@ -107,6 +108,30 @@ def test_corrupt_or_foreign_checkpoints_are_named(tmp_path):
     bad.write_bytes(data[: len(data) // 2])
     with pytest.raises(DataError, match="not a readable torch checkpoint"):
         load_checkpoint(bad)
+
+
+class _Payload:
+    def __reduce__(self):
+        return (print, ("a payload ran",))
+
+
+@pytest.mark.parametrize(
+    "name, write, message",
+    [
+        ("text", lambda path: path.write_text("hello world\n"), r"not a readable torch checkpoint \(KeyError"),
+        ("random", lambda path: path.write_bytes(bytes(range(256)) * 8), "not a readable torch checkpoint"),
+        ("pickle", lambda path: path.write_bytes(pickle.dumps(_Payload())), "nothing was unpickled"),
+        ("torch", lambda path: torch.save({"x": _Payload()}, path), "nothing was unpickled"),
+    ],
+)
+def test_a_file_that_is_no_checkpoint_is_refused_and_never_unpickled(tmp_path, capsys, name, write, message):
+    """A text file was a KeyError traceback (torch's legacy reader); a pickle with a payload is refused by the safe
+    loader without running it, and the message does not pass on torch's advice to set weights_only=False."""
+    path = tmp_path / f"{name}.pt"
+    write(path)
+    with pytest.raises(DataError, match=message) as error:
+        load_checkpoint(path)
+    assert "weights_only" not in str(error.value) and "a payload ran" not in capsys.readouterr().out
 
 
 def test_the_metrics_log_reads_as_epoch_records_and_a_damaged_line_is_named(tmp_path):

@@ -87,7 +87,10 @@ def load_export(path: str | Path) -> Export:
             arrays = {key: data[key] for key in data.files}
     except FileNotFoundError:
         raise ExportError(f"{path}: file not found") from None
-    except (OSError, ValueError, zipfile.BadZipFile) as err:  # ValueError: object arrays (pickle) refused
+    except ValueError as err:  # numpy's text goes on to advise allow_pickle=True: not passed on
+        problem = "it is not a zip of arrays, or holds object arrays that would need unpickling, which is refused"
+        raise ExportError(f"{path}: not a readable .npz export ({problem})") from err
+    except (OSError, zipfile.BadZipFile) as err:
         raise ExportError(f"{path}: not a readable .npz export ({err})") from None
     if "format_version" not in arrays:
         raise ExportError(f"{path}: field 'format_version' is missing: not an airimu export")

@@ -258,6 +258,10 @@ def view(recording: str = typer.Argument(..., help="an .rrd written by demo/abla
 
     if not Path(recording).is_file():
         raise typer.BadParameter(f"{recording}: no such recording")
+    with open(recording, "rb") as f:
+        magic = f.read(3)
+    if magic != b"RRF":  # every .rrd starts so (RRF2 today); the viewer's own error for another file is opaque
+        raise typer.BadParameter(f"{recording}: not a Rerun recording (an .rrd starts with 'RRF', this with {magic!r})")
     raise typer.Exit(subprocess.call([sys.executable, "-m", "rerun", recording]))
 
 

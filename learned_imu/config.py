@@ -297,6 +297,8 @@ def read_yaml(path: Path):
         return yaml.load(path.read_text(), Loader=UniqueKeyLoader)  # noqa: S506 (a SafeLoader subclass)
     except OSError as error:
         raise ConfigError(f"{path}: cannot read the config: {error.strerror}") from error
+    except UnicodeDecodeError as error:
+        raise ConfigError(f"{path}: not a text file in UTF-8 (byte {error.start}): a config is YAML text") from None
     except _RepeatedKey as error:
         raise ConfigError(f"{path}: {error}") from None
     except yaml.YAMLError as error:

@@ -120,13 +120,16 @@ CLI_CASES = {
     "pgo epochs 0": (["ablate-pgo", "--config", "pgo_demo.yaml", "--epochs", "0"], "--epochs must be at least 1"),
     "pgo rrd is a folder": (["ablate-pgo", "--config", "pgo_demo.yaml", "--rrd", "{tmp}"], "--rrd: "),
     "train out is a file": (["train", "--config", "demo.yaml", "--out", "{imu}"], "--out: "),
+    "config not text": (["train", "--config", "{binary}", "--out", "{tmp}/r"], "not a text file in UTF-8"),
+    "view a csv": (["view", "{imu}"], "not a Rerun recording (an .rrd starts with 'RRF'"),
 }
 
 
 @pytest.mark.parametrize("case", sorted(CLI_CASES))
 def test_cli_values_are_refused_naming_the_flag(case, files, tmp_path, capsys, monkeypatch):
     args, message = CLI_CASES[case]
-    paths = {"imu": files / "imu.csv", "imu_only": files / "imu_only.csv", "gps": files / "gps.csv", "tmp": tmp_path}
+    paths = {"imu": files / "imu.csv", "imu_only": files / "imu_only.csv", "gps": files / "gps.csv", "tmp": tmp_path,
+             "binary": files / "random.csv"}  # fmt: skip
     code, err = cli(capsys, monkeypatch, *(a.format(**paths) for a in args))
     assert code == 2
     assert message in " ".join(err.replace("│", " ").split())  # typer boxes and wraps its message

@@ -138,6 +138,14 @@ def check_timestamps(
 def check_units(acc: np.ndarray, gyro: np.ndarray, source: object) -> None:
     """Raise a DataError when acc does not look like m/s^2 or gyro does not look like rad/s (no GT needed)."""
     acc_norm = float(np.median(np.linalg.norm(acc, axis=1)))
+    gyro_norm = float(np.median(np.linalg.norm(gyro, axis=1)))
+    low, high = ACC_PLAUSIBLE_MS2
+    if not low < acc_norm < high and low < gyro_norm < high:  # a sustained 4-25 rad/s is no IMU's median rate
+        raise DataError(
+            source, "gyro/acc",
+            f"the gyro columns hold the specific force (median |gyro| = {gyro_norm:.3g}, |acc| = {acc_norm:.3g}; "
+            "gravity is about 9.81 m/s^2): gyro and acc columns swapped?",
+        )  # fmt: skip
     if ACC_IN_G[0] < acc_norm < ACC_IN_G[1]:
         raise DataError(
             source,

@@ -157,6 +157,9 @@ def test_units_check_passes_on_real_data_and_names_g_and_deg_per_s(v102):
     assert err.value.field == "gyro"
     with pytest.raises(DataError, match="expected about 9.81"):
         check_units(v102.acc * 1000, v102.gyro, "v102")  # mm/s^2
+    with pytest.raises(DataError, match="gyro and acc columns swapped") as err:  # was "acc looks like it is in g"
+        check_units(v102.gyro, v102.acc, "v102")
+    assert err.value.field == "gyro/acc"
 
 
 def test_frame_self_check_passes_on_real_data(v102):

@@ -44,9 +44,10 @@ import torch
 
 from factors import GpsFactor, gps_noise, learned_pim
 from factors.gps import ROBUST_LOSSES
+from factors.noise import noise_mismatch
 from fusion.graph import BiasStates, Trajectory
 from fusion.initial import first_state, priors_on_first
-from learned_imu.errors import AirImuError, InputError
+from learned_imu.errors import AirImuError, InputError, real_array
 from learned_imu.network.inference import check_times_rate
 from learned_imu.network.model import DEFAULT_ACC_COV, DEFAULT_GYRO_COV, AirImuNet
 
@@ -60,6 +61,7 @@ SMOOTHERS = ("isam2", "fixed_lag")
 RELINEARIZE_THRESHOLD = 0.01
 RATE_CHECK_SAMPLES = 20  # samples seen before the stream's rate is compared with the model's training rate
 CONVERGE_ROUNDS = 20  # flush's re-linearisation rounds at most (bias states with ISAM2)
+NOISE_CHECK_SAMPLES = 400  # raw samples seen before given densities are compared with the stream's white noise
 
 
 @dataclass(eq=False)
@@ -105,7 +107,10 @@ class OnlineFusion:
         initial_state: ``gtsam.NavState`` (pose world <- IMU, world velocity m/s) at the first IMU sample: the prior's
             mean.
         keyframe_s: keyframe interval, s (each keyframe costs CPU time: BENCHMARKS.md, "Online fusion").
-        gyro_cov, acc_cov: noise densities without a model, sigma^2: rad^2/s and m^2/s^3 (float or (3,)).
+        gyro_cov, acc_cov: noise densities without a model, sigma^2: rad^2/s and m^2/s^3 (float or (3,)); None:
+            ``DEFAULT_GYRO_COV`` / ``DEFAULT_ACC_COV``. Given ones are compared with the stream's own white noise
+            once ``NOISE_CHECK_SAMPLES`` samples are in, and warned about 3x under or 10x over it (a sigma given as
+            sigma^2, or the reverse).
         smoother: ``"isam2"`` (keeps every keyframe) or ``"fixed_lag"`` (keeps the last ``lag_s`` seconds; an older
             keyframe's trajectory entry is its estimate when it left the window).
         lag_s: window of the fixed-lag smoother, s.
@@ -125,8 +130,8 @@ class OnlineFusion:
         gravity,
         initial_state,
         keyframe_s: float = 1.0,
-        gyro_cov=DEFAULT_GYRO_COV,
-        acc_cov=DEFAULT_ACC_COV,
+        gyro_cov=None,
+        acc_cov=None,
         smoother: str = "isam2",
         lag_s: float = 10.0,
         prior_rot_sigma_rad: float = 0.01,
@@ -151,7 +156,14 @@ class OnlineFusion:
         self._gravity = _vector("gravity", gravity)
         self._first = first_state(initial_state, "OnlineFusion")
         self._prior_sigmas = (float(prior_rot_sigma_rad), float(prior_pos_sigma_m), float(prior_vel_sigma_m_s))
-        self._density = np.hstack([np.broadcast_to(np.asarray(d, float), (3,)) for d in (gyro_cov, acc_cov)])
+        given = gyro_cov is not None or acc_cov is not None
+        gyro_cov = DEFAULT_GYRO_COV if gyro_cov is None else gyro_cov
+        acc_cov = DEFAULT_ACC_COV if acc_cov is None else acc_cov
+        densities = [real_array(gyro_cov, "OnlineFusion: gyro_cov"), real_array(acc_cov, "OnlineFusion: acc_cov")]
+        if any(d.shape not in ((), (3,)) for d in densities):
+            raise InputError(f"OnlineFusion: gyro_cov and acc_cov must be floats or (3,), got shapes "
+                             f"{densities[0].shape} and {densities[1].shape}")  # fmt: skip
+        self._density = np.hstack([np.broadcast_to(d, (3,)) for d in densities])
         if not np.all(self._density > 0) or min(self._prior_sigmas) <= 0:
             raise InputError("OnlineFusion: noise densities and prior sigmas must be > 0")
         if gps_robust not in (None, *ROBUST_LOSSES):
@@ -190,6 +202,7 @@ class OnlineFusion:
         self._frozen: dict[int, tuple[gtsam.Pose3, np.ndarray]] = {}  # keyframes that left the fixed-lag window
         self._flushed = False
         self._rate_checked = False
+        self._noise_sample = (np.zeros(0), np.zeros((0, 6))) if model is None and given else None  # _check_noise
         self.unused_fixes: tuple[float, ...] = ()  # times of the fixes flush() could not use
 
     @property
@@ -224,8 +237,12 @@ class OnlineFusion:
         """Add a GPS fix: time ``t`` s (IMU clock), antenna position ``pos_m`` (3,) m in the world frame, one-sigma
         noise ``sigma_m`` m (float or (3,), a standard deviation). Returns True if the graph was updated now,
         False if the fix waits for its keyframe (or, fixed-lag only, was dropped as older than the window)."""
-        t, pos = float(t), _vector("GPS pos_m", pos_m)
-        sigma = np.broadcast_to(np.asarray(sigma_m, dtype=float), (3,))
+        t, pos = real_array(t, "add_gps: t"), _vector("GPS pos_m", pos_m)
+        sigma = real_array(sigma_m, "add_gps: sigma_m")
+        if t.shape != () or sigma.shape not in ((), (3,)):
+            raise InputError(f"add_gps: need a time (a float) and sigma_m as a float or (3,), got shapes {t.shape} and "
+                             f"{sigma.shape}")  # fmt: skip
+        t, sigma = float(t), np.broadcast_to(sigma, (3,))
         if not np.isfinite(t) or not np.all(np.isfinite(sigma)) or np.any(sigma <= 0):
             raise InputError(f"add_gps: need a finite time and positive, finite sigma_m, got t={t}, sigma_m={sigma_m}")
         if not self._kf_t or t < self._kf_t[0]:
@@ -439,8 +456,8 @@ class OnlineFusion:
     def _check_samples(self, t, gyro, acc) -> tuple[np.ndarray, np.ndarray]:
         if self._flushed:
             raise InputError("add_imu: the stream was flushed; start a new OnlineFusion")
-        t = np.atleast_1d(np.asarray(t, dtype=float))
-        gyro, acc = (np.atleast_2d(np.asarray(x, dtype=float)) for x in (gyro, acc))
+        t = np.atleast_1d(real_array(t, "add_imu: t"))
+        gyro, acc = (np.atleast_2d(real_array(x, f"add_imu: {name}")) for x, name in ((gyro, "gyro"), (acc, "acc")))
         if t.ndim != 1 or gyro.shape != (len(t), 3) or acc.shape != gyro.shape:
             raise InputError(f"add_imu: need t (M,), gyro and acc (M, 3) (or one sample: a float and (3,)); "
                              f"got {np.shape(t)}, {gyro.shape}, {acc.shape}")  # fmt: skip
@@ -455,7 +472,24 @@ class OnlineFusion:
         if self._model is not None and not self._rate_checked and len(self._t) + len(t) >= RATE_CHECK_SAMPLES:
             self._rate_checked = True  # the model's training rate against the stream's, as correct() checks it
             check_times_rate(self._model, np.concatenate([self._t, t]), "add_imu")
+        if self._model is None and self._noise_sample is not None:
+            self._check_noise(t, raw)
         return t, raw
+
+    def _check_noise(self, t: np.ndarray, raw: np.ndarray) -> None:
+        """Once ``NOISE_CHECK_SAMPLES`` raw samples are in: the given densities against the samples' own white noise
+        (``factors.noise.noise_mismatch``, as ``fuse`` and ``learned_pim`` check typed constants), a warning each."""
+        seen_t, seen = self._noise_sample
+        seen_t, seen = np.concatenate([seen_t, t]), np.concatenate([seen, raw])
+        if len(seen_t) < NOISE_CHECK_SAMPLES:
+            self._noise_sample = (seen_t, seen)
+            return
+        self._noise_sample = None
+        for sensor, columns in (("gyro", slice(0, 3)), ("acc", slice(3, 6))):
+            sigma = float(np.sqrt(self._density[columns].max()))
+            message = noise_mismatch(sensor, sigma, seen[:, columns], np.diff(seen_t))
+            if message:
+                log.warning("OnlineFusion: %s_cov %.3g (sigma %.3g): %s", sensor, sigma**2, sigma, message)
 
 
 def _vector(name: str, value) -> np.ndarray:

@@ -185,6 +185,12 @@ def test_bad_input_is_refused_by_name(sequence, caplog):
         fusion.add_imu(seq.t[5:7], seq.gyro[5:8], seq.acc[5:7])
     with pytest.raises(InputError, match="sigma"):
         fusion.add_gps(seq.t[1], [0.0, 0.0, 0.0], -1.0)
+    with pytest.raises(InputError, match=r"sigma_m as a float or \(3,\), got shapes \(\) and \(2,\)"):
+        fusion.add_gps(seq.t[1], [0.0, 0.0, 0.0], [0.1, 0.1])  # was numpy's broadcast error
+    with pytest.raises(InputError, match="add_gps: t: expected an array of real numbers"):
+        fusion.add_gps("12:00:01", [0.0, 0.0, 0.0], 0.1)  # was float()'s ValueError
+    with pytest.raises(InputError, match="add_imu: gyro: expected real numbers, got complex"):
+        fusion.add_imu(seq.t[5:7], seq.gyro[5:7] + 1e-3j, seq.acc[5:7])  # was cast to its real part with a warning
     # refused blocks left nothing behind: the stream goes on to its first keyframe
     assert fusion.add_imu(seq.t[5:101], seq.gyro[5:101], seq.acc[5:101]) == 1
     assert fusion.trajectory().t.tolist() == [seq.t[0], seq.t[100]]
@@ -209,6 +215,22 @@ def test_bad_input_is_refused_by_name(sequence, caplog):
     fusion = OnlineFusion(slow, seq.gravity, first_state(seq))
     with pytest.raises(InputError, match=r"sampled at 200.0 Hz, but the model was trained at 100.0 Hz \(kitti_raw\)"):
         fusion.add_imu(seq.t[:30], seq.gyro[:30], seq.acc[:30])
+
+
+def test_given_densities_the_stream_contradicts_are_warned_about(sequence, caplog):
+    """A sigma given where sigma^2 is expected (0.004 as gyro_cov: 216x the stream's own white noise) is warned
+    about once 400 samples are in, naming both numbers; the defaults (a deliberate, conservative choice) are not."""
+    seq = sequence
+    for gyro_cov, expect in ((0.004, True), (None, False)):
+        caplog.clear()
+        fusion = OnlineFusion(None, seq.gravity, first_state(seq), KEYFRAME_S, gyro_cov=gyro_cov)
+        with caplog.at_level(logging.WARNING):
+            for start in range(0, 600, BLOCK):
+                fusion.add_imu(seq.t[start : start + BLOCK], seq.gyro[start : start + BLOCK],
+                               seq.acc[start : start + BLOCK])  # fmt: skip
+        assert ("gyro_cov 0.004 (sigma 0.0632)" in caplog.text and "above the white noise" in caplog.text) == expect
+    with pytest.raises(InputError, match=r"gyro_cov and acc_cov must be floats or \(3,\)"):
+        OnlineFusion(None, seq.gravity, first_state(seq), gyro_cov=[1e-6, 1e-6])
 
 
 @pytest.mark.slow

@@ -14,6 +14,8 @@ motion; x/y/z in km or mm) leaves the IMU's motion, or a thousand times more tha
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 
 from learned_imu.datasets.sequence import GpsFixes, ImuSequence
@@ -28,10 +30,10 @@ CLOCK_RATIO = 2.0  # the best offset explains the track this many times better t
 CLOCK_MIN_S = 0.3  # smaller best offsets are not reported (the fixes' association to IMU samples moves the misfit)
 
 
-def track_misfit(sequence: ImuSequence, fixes: GpsFixes, _deltas=None) -> float | None:
+def track_misfit(sequence: ImuSequence, fixes: GpsFixes) -> float | None:
     """RMS, m/s, of the GPS track's velocity changes that the IMU cannot explain (module docstring); None when
     the fixes inside the IMU's span make fewer than one stretch of triples."""
-    vel, prefix, elapsed = _deltas or _prefix(sequence)
+    vel, prefix, elapsed = _prefix(sequence)
     inside = (fixes.t >= sequence.t[0]) & (fixes.t < sequence.t[-1])
     t, pos = fixes.t[inside], fixes.pos[inside]
     keep = [0]
@@ -67,13 +69,12 @@ def clock_offset(
     times. A clock offset of the fixes shows as a misfit whose minimum is away from 0 (KITTI 0027 with fixes 0.5 /
     1 / 2 s late: 1.52 / 2.18 / 2.18 m/s as read, 0.64 at the offset; tests/fusion/test_fuse_mistakes.py).
     (nan, nan, nan) when too few fixes lie in the IMU's span."""
-    deltas = _prefix(sequence)
-    as_read = track_misfit(sequence, fixes, deltas)
+    as_read = track_misfit(sequence, fixes)
     if as_read is None:
         return (np.nan, np.nan, np.nan)
     best, best_misfit = 0.0, as_read
     for offset in np.arange(-search_s, search_s + CLOCK_STEP_S / 2, CLOCK_STEP_S):
-        misfit = track_misfit(sequence, GpsFixes(fixes.t - offset, fixes.pos, fixes.sigma), deltas)
+        misfit = track_misfit(sequence, GpsFixes(fixes.t - offset, fixes.pos, fixes.sigma))
         if misfit is not None and misfit < best_misfit:
             best, best_misfit = float(offset), misfit
     return best, best_misfit, as_read
@@ -81,13 +82,20 @@ def clock_offset(
 
 def _prefix(sequence: ImuSequence) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The IMU's preintegrated velocity and position from sample 0 and the time elapsed, per sample (index n: at
-    sample n, in the frame of sample 0)."""
-    import torch
+    sample n, in the frame of sample 0); one preintegration of the whole log per sequence, however many readings,
+    shifts and checks ask (the unit check's alternatives and the clock search ask up to ~100 times)."""
+    if sequence not in _PREFIXES:
+        import torch
 
-    from learned_imu.geometry.preintegration import preintegrate
+        from learned_imu.geometry.preintegration import preintegrate
 
-    deltas = preintegrate(torch.as_tensor(sequence.gyro), torch.as_tensor(sequence.acc), torch.as_tensor(sequence.dt))
-    vel = np.concatenate([np.zeros((1, 3)), deltas.vel.numpy()])
-    prefix = np.concatenate([np.zeros((1, 3)), deltas.pos.numpy()])
-    elapsed = np.concatenate([[0.0], deltas.dt.numpy()])
-    return vel, prefix, elapsed
+        gyro, acc, dt = (torch.as_tensor(x) for x in (sequence.gyro, sequence.acc, sequence.dt))
+        deltas = preintegrate(gyro, acc, dt)
+        vel = np.concatenate([np.zeros((1, 3)), deltas.vel.numpy()])
+        prefix = np.concatenate([np.zeros((1, 3)), deltas.pos.numpy()])
+        elapsed = np.concatenate([[0.0], deltas.dt.numpy()])
+        _PREFIXES[sequence] = (vel, prefix, elapsed)
+    return _PREFIXES[sequence]
+
+
+_PREFIXES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # ImuSequence (hashed by identity) -> _prefix

@@ -41,8 +41,7 @@ CAUSES = {
             "low": "GPS sigmas far too large"},
     "imu": {"high": "IMU noise given as a variance (sigma^2) where a sigma is expected, IMU samples in another unit, "
                     "a time offset, or a sensor bias the graph does not model (raw samples without bias states)",
-            "low": "IMU noise given as sigma where sigma^2 is expected, or far too "
-                                               "pessimistic"},
+            "low": "IMU noise given as sigma where sigma^2 is expected, or far too pessimistic"},
     "bias": {"high": "a bias random walk too small for the sensor", "low": "a bias random walk far too large"},
 }  # fmt: skip
 
@@ -92,7 +91,7 @@ def residuals(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> dict[s
     except RuntimeError:  # an indeterminate graph: no redundancy; the dimensions stand in (an upper bound)
         marginals = None  # (and ``check`` judges the high side only: a low chi-square per dimension is no evidence)
     dims = values.dims()
-    rows = []  # (kind, dim, chi2) per factor
+    rows = []  # (factor, kind, dim, chi2) per factor with a residual to judge
     for factor in factors:
         chi2 = _chi2(factor, values)
         if chi2 is not None:

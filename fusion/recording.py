@@ -407,13 +407,14 @@ def _early_stop(folder: Path, history: list[dict], best: int) -> tuple[int, int]
     ``history`` (the rule of ``train_run``), else None; None without a readable config too."""
     from learned_imu.config import load_config
     from learned_imu.errors import AirImuError
+    from learned_imu.training.experiment import stopped_early
 
     try:
         train = load_config(folder / "config.yaml").train
     except (AirImuError, OSError):
         return None
     patience = train.early_stop_patience
-    stalled = patience > 0 and history[-1]["epoch"] - history[best]["epoch"] >= patience
+    stalled = stopped_early(history[-1]["epoch"], history[best]["epoch"], patience)
     return (train.epochs, patience) if stalled and len(history) < train.epochs else None
 
 

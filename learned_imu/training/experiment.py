@@ -337,7 +337,13 @@ def _differences(old: dict, new: dict, where: str = "") -> list[str]:
 
 
 def _stalled(history: list[EpochLog], best: BestEpoch | None, patience: int) -> bool:
-    return patience > 0 and bool(history) and history[-1].epoch - best.epoch >= patience
+    return bool(history) and stopped_early(history[-1].epoch, best.epoch, patience)
+
+
+def stopped_early(last_epoch: int, best_epoch: int, patience: int) -> bool:
+    """The early-stop rule (``train.early_stop_patience``): ``patience`` epochs past the best without a lower
+    validation loss; 0 switches it off. ``fusion.recording`` marks a run so stopped by the same rule."""
+    return patience > 0 and last_epoch - best_epoch >= patience
 
 
 def _write_metrics(path: Path, history: list[EpochLog]) -> None:

@@ -175,10 +175,19 @@ def write_gtsam_files(drive, folder: Path, metadata: Path) -> None:
     fixes = fixes[drive.gt.valid[fixes]]
     gps = np.column_stack([drive.t[fixes], drive.gt.pos[fixes]])
     np.savetxt(folder / "KittiGps_converted.txt", gps, header="Time,X,Y,Z", comments="", delimiter=",", fmt="%.12f")
-    (folder / METADATA).write_bytes(metadata.read_bytes())
+    (folder / metadata.name).write_bytes(metadata.read_bytes())
 
 
-METADATA = "KittiEquivBiasedImu_metadata.txt"
+def corrected(example, out):
+    """A model's output (``correct``) as the example's per-sample ``Samples``."""
+    fields = (out.gyro, out.acc, out.gyro_cov, out.acc_cov)
+    return example.Samples(*(np.asarray(x.numpy(), dtype=float) for x in fields))
+
+
+def run_variant(example, folder: Path, variant: Variant, inputs: Inputs, skip: int, wait: int | None):
+    """The script's loop on the files in ``folder`` with ``variant``'s samples (and first-bias prior)."""
+    kwargs = {"bias_prior_sigmas": variant.bias_prior_sigmas} if variant.bias_prior_sigmas else {}
+    return example.run(folder, gps_skip=skip, wait=wait, samples=variant.samples(inputs, skip), **kwargs)
 
 
 def drive_ate_m(run, drive) -> float:
@@ -190,29 +199,26 @@ def drive_ate_m(run, drive) -> float:
     return float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
 
 
-def choose_on_validation(example, model, config, inputs: Inputs, data: Path, scratch: Path) -> dict:
-    """For each rate (gps_skip): each candidate's mean ATE over the validation drives and the one with the lowest."""
+def choose_on_validation(example, model, val: list, inputs: Inputs, data: Path, scratch: Path) -> dict:
+    """For each rate (gps_skip): each candidate's mean ATE over the validation drives ``val`` and the one with the
+    lowest."""
     from learned_imu.network.inference import correct
-    from learned_imu.training.experiment import load_sequences
 
-    calibration = example.read_calibration(data / "kitti_gtsam" / METADATA)
+    metadata = data / "kitti_gtsam" / example.METADATA_FILE
+    calibration = example.read_calibration(metadata)
     by_variant = {v.name: v for v in variants(example)}
     scored = (REFERENCE, *CANDIDATES)
     scores = {(name, skip): [] for name in scored for skip, _ in RATES}
-    for i, drive in enumerate(load_sequences(config.data.val, config.data.root)):
+    for i, drive in enumerate(val):
         folder = scratch / f"val{i}"
-        write_gtsam_files(drive, folder, data / "kitti_gtsam" / METADATA)
+        write_gtsam_files(drive, folder, metadata)
         seq = read_sequence("kitti", folder)
-        out = correct(model, seq)
-        samples = example.Samples(*(np.asarray(x.numpy(), dtype=float) for x in (out.gyro, out.acc, out.gyro_cov,
-                                                                                     out.acc_cov)))  # fmt: skip
-        here = dataclasses.replace(inputs, raw=example.raw_samples(seq, calibration), model=samples)
+        raw, learned = example.raw_samples(seq, calibration), corrected(example, correct(model, seq))
+        here = dataclasses.replace(inputs, raw=raw, model=learned)
         for name in scored:
-            variant = by_variant[name]
             for skip, wait in RATES:
-                kwargs = {"bias_prior_sigmas": variant.bias_prior_sigmas} if variant.bias_prior_sigmas else {}
                 try:
-                    run = example.run(folder, gps_skip=skip, wait=wait, samples=variant.samples(here, skip), **kwargs)
+                    run = run_variant(example, folder, by_variant[name], here, skip, wait)
                 except RuntimeError:  # the script's loop stops (indeterminate) on some short drives
                     scores[name, skip].append(np.nan)
                 else:
@@ -236,26 +242,20 @@ def choose_on_validation(example, model, config, inputs: Inputs, data: Path, scr
     return out
 
 
-def model_inputs(example, checkpoint: str, config_path: str, data: Path, seq, raw) -> tuple[Inputs, dict]:
+def model_inputs(example, model, config, val: list, data: Path, seq, raw) -> tuple[Inputs, dict]:
     """The model's samples on GTSAM's file, its mean correction on the training drives, its calibration (NSE over
-    1 s and 10 s on this drive and the validation drives) and the validation drives' ML noise scales."""
-    from learned_imu.config import load_config
-    from learned_imu.network.checkpoint import model_from_checkpoint
+    1 s and 10 s on this drive and the validation drives ``val``) and the validation drives' ML noise scales."""
     from learned_imu.network.inference import correct
     from learned_imu.training.experiment import build_windows, load_sequences
     from learned_imu.training.train import noise_residuals
 
-    model, _ = model_from_checkpoint(checkpoint)
-    config = load_config(config_path, data_root=data)
     out = correct(model, seq)
-    samples = example.Samples(*(np.asarray(x.numpy(), dtype=float) for x in (out.gyro, out.acc, out.gyro_cov,
-                                                                                 out.acc_cov)))  # fmt: skip
+    samples = corrected(example, out)
     sums, count = np.zeros(6), 0
     for train in load_sequences(config.data.train, config.data.root):
         c = correct(model, train)
         sums += np.concatenate([c.d_gyro.numpy().sum(0), c.d_acc.numpy().sum(0)])
         count += len(train)
-    val = load_sequences(config.data.val, config.data.root)
     drive = read_sequence("kitti_raw", data / DRIVE, **REPAIR)
     report = {"correction_mean_this_drive": np.concatenate([out.d_gyro.numpy().mean(0), out.d_acc.numpy().mean(0)]),
               "correction_mean_training_drives": sums / count}  # fmt: skip
@@ -298,25 +298,25 @@ def main() -> None:
             print(f"GTSAM's script, {factorization}, gps_skip {skip}: solved, RMSE {solved.rmse_to_gps_m:.3f} m")
     for skip, wait in RATES:
         add("GTSAM's IMUKittiExampleGPS.py, QR", skip, example.gtsam_script(files, skip, "QR", wait))
-    seq = read_sequence("kitti", files)
-    raw = example.raw_samples(seq, example.read_calibration(files / example.METADATA_FILE))
-    inputs, report = model_inputs(example, args.checkpoint, args.config, data, seq, raw)
-    for key, value in report.items():
-        print(f"{key}: {np.array2string(np.asarray(value), precision=5)}")
     import tempfile
 
     from learned_imu.config import load_config
     from learned_imu.network.checkpoint import model_from_checkpoint
+    from learned_imu.training.experiment import load_sequences
 
+    seq = read_sequence("kitti", files)
+    raw = example.raw_samples(seq, example.read_calibration(files / example.METADATA_FILE))
+    model, config = model_from_checkpoint(args.checkpoint)[0], load_config(args.config, data_root=data)
+    val = load_sequences(config.data.val, config.data.root)
+    inputs, report = model_inputs(example, model, config, val, data, seq, raw)
+    for key, value in report.items():
+        print(f"{key}: {np.array2string(np.asarray(value), precision=5)}")
     with tempfile.TemporaryDirectory() as scratch:
-        model, config = model_from_checkpoint(args.checkpoint)[0], load_config(args.config, data_root=data)
-        choice = choose_on_validation(example, model, config, inputs, data, Path(scratch))
+        choice = choose_on_validation(example, model, val, inputs, data, Path(scratch))
     for variant in variants(example):
         for skip, wait in RATES:
             start = time.perf_counter()
-            kwargs = {"bias_prior_sigmas": variant.bias_prior_sigmas} if variant.bias_prior_sigmas else {}
-            run = example.run(files, gps_skip=skip, wait=wait, samples=variant.samples(inputs, skip), **kwargs)
-            add(variant.name, skip, run)
+            add(variant.name, skip, run_variant(example, files, variant, inputs, skip, wait))
             rows[-1]["seconds"] = time.perf_counter() - start
             rows[-1]["chosen_on_validation"] = variant.name == choice[skip]["chosen"]
     if args.json:

@@ -67,7 +67,7 @@ def clock_offset(
     """(offset, misfit there, misfit as read): the shift of the GPS times, s, within +-``search_s`` (steps of
     ``CLOCK_STEP_S``) that lets the IMU explain the track best (``track_misfit``, m/s); subtract it from the GPS
     times. A clock offset of the fixes shows as a misfit whose minimum is away from 0 (KITTI 0027 with fixes 0.5 /
-    1 / 2 s late: 1.52 / 2.18 / 2.18 m/s as read, 0.64 at the offset; tests/fusion/test_fuse_mistakes.py).
+    1 / 2 s late: 1.52 / 2.18 / 2.40 m/s as read, 0.64 at the offset; tests/fusion/test_fuse_mistakes.py).
     (nan, nan, nan) when too few fixes lie in the IMU's span."""
     as_read = track_misfit(sequence, fixes)
     if as_read is None:

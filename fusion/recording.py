@@ -46,7 +46,7 @@ import rerun.blueprint as rrb
 
 from fusion import colors
 from learned_imu.datasets._rotations import matrix_to_quat_wxyz
-from learned_imu.training.train import EpochLog
+from learned_imu.training.train import EpochLog, stopped_early
 
 TIMELINE = "time"
 SIGMA_SCALE = 3.0  # ellipsoid half-sizes and error bounds in standard deviations
@@ -407,7 +407,6 @@ def _early_stop(folder: Path, history: list[dict], best: int) -> tuple[int, int]
     ``history`` (the rule of ``train_run``), else None; None without a readable config too."""
     from learned_imu.config import load_config
     from learned_imu.errors import AirImuError
-    from learned_imu.training.experiment import stopped_early
 
     try:
         train = load_config(folder / "config.yaml").train

@@ -61,6 +61,7 @@ from learned_imu.training.train import (
     calibrate_uncertainty,
     fit_noise_scales,
     scale_noise,
+    stopped_early,
 )
 from learned_imu.training.windows import concat_windows, make_windows
 
@@ -339,11 +340,6 @@ def _differences(old: dict, new: dict, where: str = "") -> list[str]:
 def _stalled(history: list[EpochLog], best: BestEpoch | None, patience: int) -> bool:
     return bool(history) and stopped_early(history[-1].epoch, best.epoch, patience)
 
-
-def stopped_early(last_epoch: int, best_epoch: int, patience: int) -> bool:
-    """The early-stop rule (``train.early_stop_patience``): ``patience`` epochs past the best without a lower
-    validation loss; 0 switches it off. ``fusion.recording`` marks a run so stopped by the same rule."""
-    return patience > 0 and last_epoch - best_epoch >= patience
 
 
 def _write_metrics(path: Path, history: list[EpochLog]) -> None:

@@ -68,6 +68,13 @@ class EpochLog:
         return cls(**{key: (int if key == "epoch" else float)(value) for key, value in data.items()})
 
 
+def stopped_early(last_epoch: int, best_epoch: int, patience: int) -> bool:
+    """The early-stop rule (``train.early_stop_patience``): ``patience`` epochs past the best without a lower
+    validation loss; 0 switches it off. ``training.experiment.train_run`` stops by it and ``fusion.recording``
+    marks a run so stopped."""
+    return patience > 0 and last_epoch - best_epoch >= patience
+
+
 def window_loss(
     model: torch.nn.Module, batch: TrainingData, weights: LossWeights, use_covariance: bool = True
 ) -> torch.Tensor:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import airimu_configs
 
-from fusion.config import load_pgo_config
+from airimu.experiments.pgo_config import load_pgo_config
 from learned_imu.config import load_config
 
 folder = airimu_configs.FOLDER

@@ -30,9 +30,9 @@ def main() -> None:
     parser.add_argument("--no-graph", action="store_true", help="stop after inference + export")
     args = parser.parse_args()
 
+    from airimu.experiments.pgo import ate_m, gps_for
     from factors import load_export
     from fusion.graph import FusionSettings, build_graph, solve
-    from fusion.pgo import ate_m, gps_for
     from learned_imu.datasets.simulator import simulate
     from learned_imu.export import export_preintegration, keyframes_every
     from learned_imu.network.checkpoint import model_from_checkpoint

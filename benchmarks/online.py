@@ -62,8 +62,8 @@ def main() -> None:
 
     import torch
 
+    from airimu.experiments.pgo import ate_m, gps_for
     from fusion.graph import Solution
-    from fusion.pgo import ate_m, gps_for
     from learned_imu.datasets.simulator import simulate
     from learned_imu.network.checkpoint import model_from_checkpoint
     from learned_imu.network.model import AirImuNet

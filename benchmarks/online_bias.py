@@ -5,7 +5,7 @@
 ``kitti_gtsam`` (471 s of 100 Hz OXTS IMU, its 1 Hz GPS) streamed into ``fusion.online.OnlineFusion`` in blocks of 10
 samples with 1-s keyframes, each fix once the IMU has passed it: first without bias states (the default noise 0.004
 / 0.08), then with GTSAM's example settings (its noise densities, its bias prior and cumulative walk:
-``fusion.pgo.GTSAM_EXAMPLE``) at each ``relinearise_tol``. Prints the wall time, ms per keyframe, the intervals
+``airimu.experiments.pgo.GTSAM_EXAMPLE``) at each ``relinearise_tol``. Prints the wall time, ms per keyframe, the intervals
 preintegrated again and the RMSE of the keyframes against every fix (the first state: identity attitude at the first
 fix, as the drive has no ground truth here).
 """
@@ -19,8 +19,8 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
+from airimu.experiments.pgo import GTSAM_EXAMPLE
 from fusion.online import OnlineFusion
-from fusion.pgo import GTSAM_EXAMPLE
 from learned_imu.datasets import read_sequence
 
 BLOCK = 10

@@ -13,8 +13,8 @@ import argparse
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from fusion.config import load_pgo_config
-from fusion.pgo import fixes_on_samples, gps_for, recorded_phases
+from airimu.experiments.pgo import fixes_on_samples, gps_for, recorded_phases
+from airimu.experiments.pgo_config import load_pgo_config
 from learned_imu.config import load_config
 from learned_imu.training.experiment import load_sequences
 

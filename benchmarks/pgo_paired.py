@@ -14,10 +14,10 @@ import argparse
 
 import numpy as np
 
+from airimu.experiments.pgo import ate_m, gps_for
+from airimu.experiments.pgo_config import load_pgo_config
 from factors import load_export
-from fusion.config import load_pgo_config
 from fusion.graph import build_graph, solve
-from fusion.pgo import ate_m, gps_for
 from learned_imu.config import load_config
 from learned_imu.training.experiment import load_sequences
 

@@ -48,8 +48,8 @@ from pathlib import Path
 
 import torch
 
+from airimu_core.io import atomic_file
 from learned_imu.datasets import read_sequence
-from learned_imu.io import atomic_file
 from learned_imu.network.model import AirImuNet
 from learned_imu.training.chunks import concat_chunks, make_chunks
 from learned_imu.training.losses import LossWeights

@@ -20,8 +20,8 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import B, V, X
 
+from airimu.experiments.pgo import gps_for
 from factors import GpsFactor, from_export, gps_noise
-from fusion.pgo import gps_for
 from learned_imu.datasets.simulator import ImuErrorModel, simulate
 from learned_imu.export import export_preintegration, keyframes_every
 

@@ -23,8 +23,8 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
+from airimu.experiments.pgo import gps_for
 from factors import GpsFactor, from_export, gps_noise
-from fusion.pgo import gps_for
 from learned_imu.datasets.simulator import simulate
 from learned_imu.export import export_preintegration, keyframes_every
 

@@ -1,164 +1,16 @@
-"""Read an export (``learned_imu.export``, format version 1) and turn it into GTSAM factors.
-
-The loader is numpy-only and validates every array's presence, shape and finiteness and the format version,
-naming the file and the field on failure; it never unpickles (``allow_pickle=False``).
-"""
+"""GTSAM factors from an export (``airimu_core.export.Export``, in memory or a ``.npz``): ``from_export``."""
 
 from __future__ import annotations
 
-import zipfile
-from dataclasses import dataclass
 from pathlib import Path
 
 import gtsam
 import numpy as np
 
-from factors.checks import gravity_problem, preintegration_problem
+from airimu_core.errors import ExportError
+from airimu_core.export import Export, load_export
 from factors.imu import LearnedImuFactor
 from factors.pim_from_deltas import pim_from_deltas
-
-FORMAT_VERSION = 1
-
-
-class ExportError(ValueError):
-    """An export file is missing, of another format version, or malformed; the message names file and field."""
-
-
-@dataclass(frozen=True, eq=False)
-class ExportTruth:
-    """An export's ground truth at its N samples: ``rot`` (N, 3, 3) world <- IMU, ``pos`` (N, 3) m, ``vel`` (N, 3)
-    m/s (world frame), ``valid`` (N,) bool."""
-
-    rot: np.ndarray
-    pos: np.ndarray
-    vel: np.ndarray
-    valid: np.ndarray
-
-
-@dataclass(frozen=True, eq=False)
-class Export:
-    """A loaded export; see ``learned_imu.export`` for every field's shape, unit and frame. Per sample (N): ``t`` s,
-    ``gyro`` rad/s, ``acc`` m/s^2 (IMU frame; the corrected samples when a model ran), ``gyro_cov`` rad^2/s and
-    ``acc_cov`` m^2/s^3 (sigma^2 densities); ``truth`` when the file has ground truth."""
-
-    path: Path
-    name: str
-    gravity: np.ndarray
-    keyframe_t: np.ndarray
-    keyframe_index: np.ndarray
-    delta_rot: np.ndarray
-    delta_pos: np.ndarray
-    delta_vel: np.ndarray
-    delta_dt: np.ndarray
-    delta_cov: np.ndarray
-    bias_jacobian: np.ndarray
-    t: np.ndarray
-    gyro: np.ndarray
-    acc: np.ndarray
-    gyro_cov: np.ndarray
-    acc_cov: np.ndarray
-    truth: ExportTruth | None
-    arrays: dict  # every array of the file as read (the fields above are the typed view)
-
-
-_SHAPES = {  # field -> shape with "N" samples, "K" keyframes, "I" intervals
-    "gravity": (3,),
-    "t": ("N",),
-    "gyro": ("N", 3),
-    "acc": ("N", 3),
-    "gyro_cov": ("N", 3),
-    "acc_cov": ("N", 3),
-    "keyframe_t": ("K",),
-    "keyframe_index": ("K",),
-    "delta_rot": ("I", 3, 3),
-    "delta_pos": ("I", 3),
-    "delta_vel": ("I", 3),
-    "delta_dt": ("I",),
-    "delta_cov": ("I", 9, 9),
-    "bias_jacobian": ("I", 9, 6),
-}
-
-
-def load_export(path: str | Path) -> Export:
-    """Load and validate an export file."""
-    path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {key: data[key] for key in data.files}
-    except FileNotFoundError:
-        raise ExportError(f"{path}: file not found") from None
-    except ValueError as err:  # numpy's text goes on to advise allow_pickle=True: not passed on
-        problem = "it is not a zip of arrays, or holds object arrays that would need unpickling, which is refused"
-        raise ExportError(f"{path}: not a readable .npz export ({problem})") from err
-    except (OSError, zipfile.BadZipFile) as err:
-        raise ExportError(f"{path}: not a readable .npz export ({err})") from None
-    if "format_version" not in arrays:
-        raise ExportError(f"{path}: field 'format_version' is missing: not an airimu export")
-    version = int(arrays["format_version"])
-    if version != FORMAT_VERSION:
-        raise ExportError(f"{path}: field 'format_version' is {version}; this reader reads version {FORMAT_VERSION}")
-    sizes = {"N": len(arrays.get("t", [])), "K": len(arrays.get("keyframe_t", []))}
-    sizes["I"] = sizes["K"] - 1
-    for field, shape in _SHAPES.items():
-        if field not in arrays:
-            raise ExportError(f"{path}: field '{field}' is missing")
-        want = tuple(sizes[s] if isinstance(s, str) else s for s in shape)
-        if arrays[field].shape != want:
-            raise ExportError(f"{path}: field '{field}' has shape {arrays[field].shape}, expected {want}")
-        if not np.all(np.isfinite(arrays[field])):
-            raise ExportError(f"{path}: field '{field}' contains NaN or Inf")
-    if sizes["I"] < 1:
-        raise ExportError(f"{path}: field 'keyframe_t' needs at least two keyframes")
-    _check_consistent(path, arrays, sizes["N"])
-    return Export(
-        path=path,
-        name=str(arrays.get("name", path.stem)),
-        arrays=arrays,
-        truth=_truth(path, arrays, sizes["N"]),
-        **{field: arrays[field] for field in Export.__dataclass_fields__ if field in _SHAPES},
-    )
-
-
-_TRUTH_SHAPES = {"gt_rot": (3, 3), "gt_pos": (3,), "gt_vel": (3,), "gt_valid": ()}  # per sample
-
-
-def _truth(path: Path, arrays: dict, n: int) -> ExportTruth | None:
-    """The ground truth of the file, all four fields or none; shapes checked (NaN allowed where not valid)."""
-    present = [field for field in _TRUTH_SHAPES if field in arrays]
-    if not present:
-        return None
-    for field, shape in _TRUTH_SHAPES.items():
-        if field not in arrays:
-            raise ExportError(f"{path}: field '{field}' is missing (the file has {', '.join(present)})")
-        if arrays[field].shape != (n, *shape):
-            raise ExportError(f"{path}: field '{field}' has shape {arrays[field].shape}, expected {(n, *shape)}")
-    return ExportTruth(arrays["gt_rot"], arrays["gt_pos"], arrays["gt_vel"], arrays["gt_valid"].astype(bool))
-
-
-def _check_consistent(path: Path, arrays: dict, n: int) -> None:
-    """The checks every backend needs (``factors.checks``): measurements, gravity, keyframes that index the
-    samples in order, positive noise densities."""
-    problem = preintegration_problem(arrays["delta_rot"], arrays["delta_dt"], arrays["delta_cov"])
-    if problem is not None:
-        k, why = problem
-        field = why.split(" ", 1)[0]
-        raise ExportError(f"{path}: field '{field}', interval {k}: {why}")
-    why = gravity_problem(arrays["gravity"])
-    if why:
-        raise ExportError(f"{path}: field 'gravity': {why}")
-    index, kt, t = arrays["keyframe_index"], arrays["keyframe_t"], arrays["t"]
-    if not np.issubdtype(index.dtype, np.integer) or np.any(np.diff(index) <= 0) or index[0] < 0 or index[-1] >= n:
-        raise ExportError(f"{path}: field 'keyframe_index' must be strictly increasing sample indices in [0, {n - 1}]")
-    if np.any(np.diff(t) <= 0):
-        raise ExportError(f"{path}: field 't' must be strictly increasing")
-    if np.abs(kt - t[index]).max() > 1e-6:
-        raise ExportError(f"{path}: field 'keyframe_t' differs from t[keyframe_index] (s)")
-    if np.abs(arrays["delta_dt"] - np.diff(kt)).max() > 1e-6:
-        raise ExportError(f"{path}: field 'delta_dt' differs from the keyframe times' differences (s)")
-    for field in ("gyro_cov", "acc_cov"):
-        if not np.all(arrays[field] > 0):
-            raise ExportError(f"{path}: field '{field}' must hold positive noise densities (sigma^2)")
-
 
 BACKENDS = ("custom", "gtsam")
 FACTORS = ("imu", "combined")

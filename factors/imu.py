@@ -33,7 +33,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from factors.checks import preintegration_problem
+from airimu_core.checks import preintegration_problem
 
 
 class LearnedImuFactor(gtsam.CustomFactor):

@@ -25,6 +25,7 @@ import logging
 import gtsam
 import numpy as np
 
+from airimu_core.errors import InputError, real_array
 from factors.noise import noise_mismatch
 
 # an IMU on Earth measures about g of specific force; a median below this over an interval (not a brief free fall)
@@ -132,7 +133,7 @@ def _checked(gyro, acc, dt, gyro_cov, acc_cov):
     n = len(gyro)
     if acc.shape != gyro.shape:
         raise ValueError(f"learned_pim: gyro {gyro.shape} and acc {acc.shape} must both be (N, 3)")
-    dt = np.broadcast_to(_real(dt, "learned_pim: dt"), (n,))
+    dt = np.broadcast_to(real_array(dt, "learned_pim: dt"), (n,))
     if not np.all(np.isfinite(dt)) or np.any(dt <= 0):
         raise ValueError("learned_pim: dt must be positive and finite for every sample")
     if float(np.median(dt)) > MAX_MEDIAN_DT_S:
@@ -156,28 +157,8 @@ def _checked(gyro, acc, dt, gyro_cov, acc_cov):
     return gyro, acc, dt, *covs
 
 
-class _NotReal(ValueError):
-    """An argument that is not an array of real numbers (a ``ValueError``, as the module's other refusals)."""
-
-
-def _real(value, name: str) -> np.ndarray:
-    """``value`` as float64, or a ``_NotReal`` naming ``name`` for ragged nestings, text or complex numbers (numpy
-    would say "setting an array element with a sequence", or cast complex to its real part with a warning). The
-    twin of ``learned_imu.errors.real_array``, which this package may not import."""
-    try:
-        array = np.asarray(value)  # numpy's own dtype: complex stays complex, text stays text
-    except ValueError:
-        raise _NotReal(f"{name}: expected an array of real numbers, got a ragged nesting (rows of different "
-                       "lengths)") from None  # fmt: skip
-    if np.iscomplexobj(array):
-        raise _NotReal(f"{name}: expected real numbers, got complex values")
-    if not (np.issubdtype(array.dtype, np.number) or array.dtype == bool):
-        raise _NotReal(f"{name}: expected an array of real numbers, got {repr(value)[:60]}")
-    return array.astype(np.float64)
-
-
 def _samples(name: str, value) -> np.ndarray:
-    out = _real(value, f"learned_pim: {name}")
+    out = real_array(value, f"learned_pim: {name}")
     if out.ndim != 2 or out.shape[1] != 3 or len(out) == 0:
         raise ValueError(f"learned_pim: {name} must be (N, 3) with N >= 1, got shape {out.shape}")
     if not np.all(np.isfinite(out)):
@@ -187,8 +168,8 @@ def _samples(name: str, value) -> np.ndarray:
 
 def _densities(name: str, value, n: int) -> np.ndarray:
     try:
-        out = np.broadcast_to(_real(value, f"learned_pim: {name}"), (n, 3))
-    except _NotReal:
+        out = np.broadcast_to(real_array(value, f"learned_pim: {name}"), (n, 3))
+    except InputError:
         raise
     except ValueError:
         raise ValueError(f"learned_pim: {name} must be a float, (3,) or (N, 3); got {np.shape(value)}") from None

@@ -20,12 +20,10 @@ from importlib.metadata import version
 import gtsam
 import numpy as np
 
+from airimu_core.errors import PimLayoutError
+
 _GTSAM_VERSION = version("gtsam")
 _SENTINEL_DT = 0.123456789  # s, a value the template's archive cannot contain by chance
-
-
-class PimLayoutError(RuntimeError):
-    """GTSAM's serialisation layout is not the one this module writes into."""
 
 
 def pim_from_deltas(

@@ -21,8 +21,9 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import B, V, X
 
+from airimu_core.export import Export
 from factors.checks import solve_or_explain
-from factors.export_file import Export, from_export
+from factors.export_file import from_export
 
 IMU_FACTORS = (gtsam.ImuFactor, gtsam.CombinedImuFactor)
 

@@ -18,7 +18,7 @@ import weakref
 
 import numpy as np
 
-from learned_imu.datasets.sequence import GpsFixes, ImuSequence
+from airimu_core.sequence import GpsFixes, ImuSequence
 
 SPACING_S = 2.0  # fixes at least this far apart (GPS noise over shorter spans swamps the motion)
 STRETCH_TRIPLES = 6  # triples sharing one attitude unknown (gyro drift over ~2 x 6 x SPACING_S is small)

@@ -28,10 +28,13 @@ from typing import Literal
 import gtsam
 import numpy as np
 
+from airimu_core.errors import ConfigError, GraphError, InputError
+from airimu_core.io import atomic_file
+from airimu_core.rotations import matrix_to_quat_wxyz
+from airimu_core.sequence import GpsFixes
 from factors import (
     Export,
     GpsFactor,
-    GraphError,
     check_anchored,
     check_values,
     from_export,
@@ -48,17 +51,13 @@ from fusion.initial import (
     priors_on_first,
     sequential_initial_values,
 )
-from learned_imu.datasets._rotations import matrix_to_quat_wxyz
-from learned_imu.datasets.sequence import GpsFixes
-from learned_imu.errors import ConfigError, InputError
-from learned_imu.io import atomic_file
 
 log = logging.getLogger(__name__)
 
 X, V, B = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V, gtsam.symbol_shorthand.B
 
 
-# GPS fixes are the readers' record, learned_imu.datasets.sequence.GpsFixes (t (M,) s on the IMU clock, pos (M, 3)
+# GPS fixes are the readers' record, airimu_core.sequence.GpsFixes (t (M,) s on the IMU clock, pos (M, 3)
 # world frame m, sigma (M, 3) one-sigma m); ``Gps`` is its former name here, kept for code written against it
 Gps = GpsFixes
 
@@ -111,7 +110,7 @@ class BiasStates:
     per-sample random walk (its standard deviation over n samples is ``sqrt(n) * walk_sigma``). ``"cumulative"``:
     the samples from the first keyframe to keyframe k+1, GTSAM's ``IMUKittiExampleGPS.py`` rule (its
     ``included_imu_measurement_count`` is never reset), a walk that loosens with the time since the start (about 20x
-    at the end of its 470-s drive); use it to run that example's settings exactly (``fusion.pgo.GTSAM_EXAMPLE``)."""
+    at the end of its 470-s drive); use it to run that example's settings exactly (``airimu.experiments.pgo.GTSAM_EXAMPLE``)."""
 
     acc_walk_sigma: float
     gyro_walk_sigma: float

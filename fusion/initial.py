@@ -16,8 +16,8 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
+from airimu_core.errors import InputError
 from factors import Export
-from learned_imu.errors import InputError
 
 X, V, B = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V, gtsam.symbol_shorthand.B
 MIN_FIXES_PER_WINDOW = 3  # GPS fixes per window of the sequential initialisation

@@ -40,16 +40,13 @@ from dataclasses import dataclass
 
 import gtsam
 import numpy as np
-import torch
 
+from airimu_core.errors import AirImuError, InputError, real_array
 from factors import GpsFactor, gps_noise, learned_pim
 from factors.gps import ROBUST_LOSSES
 from factors.noise import noise_mismatch
 from fusion.graph import BiasStates, Trajectory
 from fusion.initial import first_state, priors_on_first
-from learned_imu.errors import AirImuError, InputError, real_array
-from learned_imu.network.inference import check_times_rate
-from learned_imu.network.model import DEFAULT_ACC_COV, DEFAULT_GYRO_COV, AirImuNet
 
 log = logging.getLogger(__name__)
 X, V, B = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V, gtsam.symbol_shorthand.B
@@ -126,7 +123,7 @@ class OnlineFusion:
 
     def __init__(
         self,
-        model: AirImuNet | None,
+        model,
         gravity,
         initial_state,
         keyframe_s: float = 1.0,
@@ -157,6 +154,8 @@ class OnlineFusion:
         self._first = first_state(initial_state, "OnlineFusion")
         self._prior_sigmas = (float(prior_rot_sigma_rad), float(prior_pos_sigma_m), float(prior_vel_sigma_m_s))
         given = gyro_cov is not None or acc_cov is not None
+        from learned_imu.network.model import DEFAULT_ACC_COV, DEFAULT_GYRO_COV  # replaced by FuseConfig below
+
         gyro_cov = DEFAULT_GYRO_COV if gyro_cov is None else gyro_cov
         acc_cov = DEFAULT_ACC_COV if acc_cov is None else acc_cov
         densities = [real_array(gyro_cov, "OnlineFusion: gyro_cov"), real_array(acc_cov, "OnlineFusion: acc_cov")]
@@ -344,12 +343,15 @@ class OnlineFusion:
             added += 1
         return added
 
-    @torch.no_grad()
     def _correct(self, flush: bool) -> None:
-        """Run the model on the raw samples not yet seen (it outputs whole blocks, and keeps the rest)."""
+        """Run the model on the raw samples not yet seen (it outputs whole blocks, and keeps the rest). Torch is
+        imported here, with a model only: the estimator itself never loads it."""
+        import torch
+
         p = next(self._model.parameters())
         gyro, acc = (torch.as_tensor(self._raw[None, :, i : i + 3], dtype=p.dtype, device=p.device) for i in (0, 3))
-        out, self._stream = self._model.stream(gyro, acc, self._stream, flush=flush)
+        with torch.no_grad():
+            out, self._stream = self._model.stream(gyro, acc, self._stream, flush=flush)
         self._raw = np.zeros((0, 6))
         corrected = torch.cat([out.gyro, out.acc, out.gyro_cov, out.acc_cov], dim=-1)[0].double().cpu().numpy()
         self._samples = np.concatenate([self._samples, corrected])
@@ -471,6 +473,8 @@ class OnlineFusion:
             raise InputError(f"add_imu: timestamps must be strictly increasing; t={bad} s is not")
         if self._model is not None and not self._rate_checked and len(self._t) + len(t) >= RATE_CHECK_SAMPLES:
             self._rate_checked = True  # the model's training rate against the stream's, as correct() checks it
+            from learned_imu.network.inference import check_times_rate
+
             check_times_rate(self._model, np.concatenate([self._t, t]), "add_imu")
         if self._model is None and self._noise_sample is not None:
             self._check_noise(t, raw)

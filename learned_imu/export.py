@@ -23,10 +23,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from learned_imu.datasets.sequence import ImuSequence
-from learned_imu.errors import DataError, InputError
+from airimu_core.errors import DataError, InputError
+from airimu_core.io import atomic_file
+from airimu_core.sequence import ImuSequence
 from learned_imu.geometry.preintegration import preintegrate
-from learned_imu.io import atomic_file
 from learned_imu.network.model import Correction
 
 log = logging.getLogger(__name__)

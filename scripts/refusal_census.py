@@ -2,7 +2,7 @@
 
     python scripts/refusal_census.py --before /tmp/airimu-before --after /work/main
 
-Each case runs in a fresh process (``python -m fusion.cli ...`` or a ``python -c`` snippet) with
+Each case runs in a fresh process (``python -m airimu.cli ...`` or a ``python -c`` snippet) with
 ``PYTHONPATH=<tree>`` and a scratch working directory, and ends in one of:
 
 - clean: exit 2 and stderr starting ``airimu: error:`` or typer's usage box (``Invalid value`` / ``Error``), no
@@ -46,7 +46,7 @@ GT_KEYS = dict(gt_pos=["px", "py", "pz"], gt_quat=["qw", "qx", "qy", "qz"], gt_v
 class Case:
     cls: str
     name: str
-    cli: list[str] | None = None  # arguments after ``python -m fusion.cli``
+    cli: list[str] | None = None  # arguments after ``python -m airimu.cli``
     code: str | None = None  # a library snippet (prints SENTINEL then ``Type: message`` or ``OK``)
     timeout: float = 120.0
     after_startup: bool = False  # the timeout counts from the tree's measured start-up time
@@ -71,10 +71,11 @@ from pathlib import Path
 import numpy as np
 import torch
 from learned_imu.datasets.simulator import simulate
-from learned_imu.datasets._rotations import matrix_to_quat_wxyz
+from airimu_core.rotations import matrix_to_quat_wxyz
 from learned_imu.export import export_preintegration, keyframes_every
 from learned_imu.network.checkpoint import build_model
-from learned_imu.config import DataConfig, ExperimentConfig, ModelConfig, SequenceConfig, to_dict
+from learned_imu.config import DataConfig, ExperimentConfig, ModelConfig, SequenceConfig
+from airimu_core.config import to_dict
 
 folder = Path(sys.argv[1])
 seq = simulate("drone", duration_s=30.0, rate_hz=100.0, gps_rate_hz=1.0, gps_sigma_m=0.1, seed=1)
@@ -313,7 +314,7 @@ def build_cases(d: Path) -> list[Case]:
         import torch
         from learned_imu.datasets.simulator import simulate
         from learned_imu.network.model import Correction
-        from fusion.pgo import PgoOptions, run_sequence
+        from airimu.experiments.pgo import PgoOptions, run_sequence
         seq = simulate("drone", duration_s=30.0, rate_hz=100.0, gps_rate_hz=1.0, gps_sigma_m=0.1, seed=1)
         gyro, acc = torch.as_tensor(seq.gyro), torch.as_tensor(seq.acc)
         zero = torch.zeros_like(gyro)
@@ -357,7 +358,7 @@ def startup_seconds(tree: Path, scratch: Path) -> float:
     times = []
     for _ in range(2):
         start = time.monotonic()
-        subprocess.run([sys.executable, "-m", "fusion.cli", "train", "--config", "missing.yaml", "--out", "run"],
+        subprocess.run([sys.executable, "-m", "airimu.cli", "train", "--config", "missing.yaml", "--out", "run"],
                        cwd=scratch, env=env, capture_output=True)  # fmt: skip
         times.append(time.monotonic() - start)
     return max(times)
@@ -369,7 +370,7 @@ def run_case(case: Case, tree: Path, scratch: Path, data: Path, nan_weight: str,
         subprocess.run(["truncate", "-s", "10G", str(data / "big.csv")], check=True)
     env = dict(os.environ, PYTHONPATH=str(tree), COLUMNS="200")
     env.pop("AIRIMU_DEBUG", None)
-    argv = [sys.executable, "-m", "fusion.cli", *case.cli] if case.cli else [sys.executable, "-c", case.code]
+    argv = [sys.executable, "-m", "airimu.cli", *case.cli] if case.cli else [sys.executable, "-c", case.code]
 
     def limits():
         if case.memory_limit:

@@ -1,6 +1,16 @@
-"""Dependencies flow one way: learned_imu (torch) <- factors (gtsam + numpy) <- fusion (both; the only place that
-imports rerun, in fusion.recording). Checked twice: every submodule's import statements, function-level (lazy)
-imports included, read with ``ast``; and what importing every submodule of a package actually loads."""
+"""The rooms and which way dependencies flow between them:
+
+- ``airimu_core``: the numpy-only base (errors, atomic files, YAML configs, sequences, rotations, the export record);
+- ``learned_imu``: torch (readers, simulator, preintegrator, network, training, evaluation, export);
+- ``factors``: GTSAM factors (gtsam + numpy, never torch);
+- ``fusion``: the estimator (graphs, online fusion, consistency, GPS units): gtsam + numpy; torch (and the network,
+  through ``learned_imu``) only inside the functions that run a model, never on import; never rerun, the CLI or the
+  ablations;
+- ``airimu``: the application on top (CLI, the ``fuse`` runner, recordings and figures in ``viz``, the PGO
+  ablation in ``experiments``); rerun only in ``airimu.viz.recording``.
+
+Checked twice: every submodule's import statements read with ``ast`` (function-level imports included, and
+separately the module-level ones), and what importing every submodule of a package actually loads."""
 
 from __future__ import annotations
 
@@ -14,12 +24,17 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 # package -> top-level modules its code must never import (at module level or inside a function)
+APP = {"airimu", "typer", "rich", "rerun", "matplotlib"}  # the application and what only it uses
 FORBIDDEN = {
-    "learned_imu": {"gtsam", "rerun", "factors", "fusion", "matplotlib"},
-    "factors": {"torch", "rerun", "learned_imu", "fusion", "matplotlib"},
-    "fusion": set(),
+    "airimu_core": {"torch", "gtsam", "learned_imu", "factors", "fusion", *APP},
+    "learned_imu": {"gtsam", "factors", "fusion", *APP},
+    "factors": {"torch", "learned_imu", "fusion", *APP},
+    "fusion": set(APP),
+    "airimu": set(),
 }
-RERUN_HOME = "fusion.recording"  # the one module that imports rerun
+# package -> what its modules may import inside a function but never at module level (importing them stays light)
+LAZY_ONLY = {"fusion": {"torch", "learned_imu"}}
+RERUN_HOME = "airimu.viz.recording"  # the one module that imports rerun
 
 
 def submodules(package: str) -> list[str]:
@@ -29,11 +44,14 @@ def submodules(package: str) -> list[str]:
     return found
 
 
-def imported_roots(module: str) -> set[str]:
+def imported_roots(module: str, module_level: bool = False) -> set[str]:
+    """The top-level names ``module`` imports: anywhere, or with ``module_level`` outside functions only."""
     path = REPO / Path(*module.split("."))
     source = (path / "__init__.py") if path.is_dir() else path.with_suffix(".py")
     roots = set()
-    for node in ast.walk(ast.parse(source.read_text(), str(source))):
+    tree = ast.parse(source.read_text(), str(source))
+    nodes = _outside_functions(tree) if module_level else ast.walk(tree)
+    for node in nodes:
         if isinstance(node, ast.Import):
             roots |= {alias.name.split(".")[0] for alias in node.names}
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
@@ -41,11 +59,18 @@ def imported_roots(module: str) -> set[str]:
     return roots
 
 
+def _outside_functions(node):
+    for child in ast.iter_child_nodes(node):
+        if not isinstance(child, ast.FunctionDef | ast.AsyncFunctionDef | ast.Lambda):
+            yield child
+            yield from _outside_functions(child)
+
+
 ALL = [m for package in FORBIDDEN for m in submodules(package)]
 
 
 def test_every_submodule_is_walked():
-    expected = {"learned_imu.datasets.csv", "factors.imu", "fusion.recording", "learned_imu.geometry.preintegration"}
+    expected = {"learned_imu.datasets.csv", "factors.imu", "airimu.viz.recording", "airimu_core.export", "fusion.online"}
     assert expected <= set(ALL)
 
 
@@ -56,6 +81,8 @@ def test_imports_flow_one_way(module):
     assert not bad, f"{module} imports {sorted(bad)}"
     if "rerun" in roots:
         assert module == RERUN_HOME, f"{module} imports rerun; recordings live in {RERUN_HOME}"
+    eager = imported_roots(module, module_level=True) & LAZY_ONLY.get(module.split(".")[0], set())
+    assert not eager, f"{module} imports {sorted(eager)} on import; only inside the functions that need them"
 
 
 def _loaded_after_importing(package: str) -> set[str]:
@@ -65,8 +92,10 @@ def _loaded_after_importing(package: str) -> set[str]:
     return {name.split(".")[0] for name in out.split()}
 
 
-def test_importing_all_of_factors_never_loads_torch():
-    assert not {"torch", "rerun"} & _loaded_after_importing("factors")
+@pytest.mark.parametrize("package", ["airimu_core", "factors", "fusion"])
+def test_importing_the_base_the_factors_or_the_estimator_never_loads_torch(package):
+    """Every module of the numpy base, the factors and the estimator imports without torch (and without rerun)."""
+    assert not {"torch", "rerun", "typer", "matplotlib"} & _loaded_after_importing(package)
 
 
 def test_importing_all_of_learned_imu_never_loads_gtsam_or_rerun():
@@ -110,12 +139,13 @@ def test_no_module_imports_itself_round_a_circle():
 
 
 def test_the_user_facing_fuse_does_not_import_the_ablation():
-    """``airimu fuse`` (``fusion.fuse``) and what it imports stand without ``fusion.pgo`` (the PGO ablation)."""
+    """``airimu fuse`` (``airimu.fuse``) and what it imports stand without the PGO ablation (``airimu.experiments``)."""
     modules = set(ALL)
-    seen, todo = set(), ["fusion.fuse"]
+    seen, todo = set(), ["airimu.fuse"]
     while todo:
         module = todo.pop()
         if module not in seen:
             seen.add(module)
             todo.extend(imported_modules(module, modules) - set(FORBIDDEN))
-    assert "fusion.pgo" not in seen and "learned_imu.training.experiment" not in seen, sorted(seen)
+    assert not {m for m in seen if m.startswith("airimu.experiments")}, sorted(seen)
+    assert "learned_imu.training.experiment" not in seen, sorted(seen)

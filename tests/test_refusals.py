@@ -1,7 +1,7 @@
 """What the toolkit refuses, one test per class of bad input (README "What it refuses"): each case ends in one
 clear error naming the file, field, key or flag, never a traceback, a silently wrong result or a hang.
 
-CLI cases run ``fusion.cli.main`` in-process (the console script's entry point) and read its exit code and stderr.
+CLI cases run ``airimu.cli.main`` in-process (the console script's entry point) and read its exit code and stderr.
 """
 
 from __future__ import annotations
@@ -16,16 +16,16 @@ import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from factors import GraphError
-from factors.export_file import ExportError, from_export, load_export
-from fusion.cli import main
+from airimu.cli import main
+from airimu_core.errors import ConfigError, DataError, ExportError, GraphError, InputError
+from airimu_core.export import load_export
+from airimu_core.io import atomic_file, output_folder, write_json_atomic
+from airimu_core.rotations import matrix_to_quat_wxyz
+from factors.export_file import from_export
 from learned_imu.config import ModelConfig, load_config
 from learned_imu.datasets import read_sequence
-from learned_imu.datasets._rotations import matrix_to_quat_wxyz
 from learned_imu.datasets.simulator import simulate
-from learned_imu.errors import ConfigError, DataError, InputError
 from learned_imu.export import export_preintegration, keyframes_every
-from learned_imu.io import atomic_file, output_folder, write_json_atomic
 from learned_imu.network.checkpoint import build_model, model_from_checkpoint
 from tests.helpers import write_checkpoint
 
@@ -334,8 +334,8 @@ def test_positions_in_mm_without_a_velocity_column(flight, tmp_path):
 
 
 def test_too_few_or_too_close_fixes_without_a_first_state(flight):
-    from fusion.fuse import fuse
-    from learned_imu.datasets.sequence import GpsFixes
+    from airimu.fuse import fuse
+    from airimu_core.sequence import GpsFixes
 
     blind = flight.part(0.0, 1.0)
     gps = flight.gps
@@ -346,7 +346,7 @@ def test_too_few_or_too_close_fixes_without_a_first_state(flight):
 
 
 def test_a_pgo_rate_that_leaves_one_fix_names_the_option(flight, tmp_path):
-    from fusion.pgo import PgoOptions, run_sequence
+    from airimu.experiments.pgo import PgoOptions, run_sequence
     from learned_imu.network.model import Correction
 
     gyro, acc = torch.as_tensor(flight.gyro), torch.as_tensor(flight.acc)
@@ -431,7 +431,7 @@ def test_fixed_choices_in_configs_are_literal_types(key, tmp_path):
 
 
 def test_pgo_and_fusion_choices_are_literal_types(tmp_path):
-    from fusion.config import load_pgo_config
+    from airimu.experiments.pgo_config import load_pgo_config
 
     for block, key, message in (("options: {gps_source: radio}", "options.gps_source", "auto, simulated, recorded"),
                                 ("fusion: {backend: ceres}", "fusion.backend", "gtsam, custom")):  # fmt: skip

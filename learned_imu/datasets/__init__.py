@@ -1,5 +1,5 @@
 """Dataset readers: one module per format, each returning a checked ``ImuSequence`` (see
-``learned_imu.datasets.sequence``).
+``airimu_core.sequence``).
 
 ``read_sequence("euroc", path, **options)`` dispatches by name through ``READERS``; each reader's module
 docstring states its frames, quaternion order and units. The options every reader shares (duplicates, gaps, crop,
@@ -17,16 +17,16 @@ from collections.abc import Callable
 from dataclasses import fields
 from pathlib import Path
 
+from airimu_core.sequence import ImuSequence
+from airimu_core.table import check_input_size
 from learned_imu.datasets import broad, kitti, kitti_raw
 from learned_imu.datasets._assemble import ReadChecks
-from learned_imu.datasets._table import check_input_size
 from learned_imu.datasets.broad import read_broad
 from learned_imu.datasets.csv import read_csv
 from learned_imu.datasets.euroc import read_euroc
 from learned_imu.datasets.kitti import read_kitti
 from learned_imu.datasets.kitti_raw import read_kitti_raw
 from learned_imu.datasets.rosbag import read_rosbag
-from learned_imu.datasets.sequence import ImuSequence
 from learned_imu.datasets.tumvi import read_tumvi
 
 READERS: dict[str, Callable[..., ImuSequence]] = {
@@ -60,7 +60,7 @@ def read_sequence(dataset: str, path: str | Path | None = None, **options) -> Im
     (zero bytes, random bytes, another format, no permission) is a ``DataError`` naming it; the parser's own
     exception is its ``__cause__``.
     """
-    from learned_imu.errors import AirImuError, DataError, InputError
+    from airimu_core.errors import AirImuError, DataError, InputError
 
     if dataset not in READERS:
         raise InputError(f"unknown dataset {dataset!r}; known datasets: {', '.join(sorted(READERS))}")
@@ -88,7 +88,7 @@ def check_options(dataset: str, options: dict, where: str = "options") -> dict:
     ``UNUSED_CHECKS``), every value of the annotated type (numbers, strings, booleans, lists of them) or one of the
     option's choices, at most ``MAX_OPTION_ITEMS`` values nested ``MAX_OPTION_DEPTH`` deep. A ``ConfigError`` names
     ``where``.key."""
-    from learned_imu.errors import ConfigError
+    from airimu_core.errors import ConfigError
 
     if dataset == SIMULATOR:
         from learned_imu.datasets.simulator import simulate as function
@@ -129,7 +129,8 @@ POSITIVE_OPTIONS = {
 
 def _choices() -> dict[str, tuple]:
     """Options with a fixed set of values, by name (the same name means the same choice in every reader)."""
-    from learned_imu.datasets import _checks, _rotations, csv, kitti_raw, rosbag, tumvi
+    from airimu_core import rotations as _rotations
+    from learned_imu.datasets import _checks, csv, kitti_raw, rosbag, tumvi
     from learned_imu.datasets.simulator import GRADES, PROFILES
 
     return {
@@ -141,7 +142,7 @@ def _choices() -> dict[str, tuple]:
 
 
 def _check_size(value, where: str) -> None:
-    from learned_imu.errors import ConfigError
+    from airimu_core.errors import ConfigError
 
     count = 0
     stack = [(value, 0)]

@@ -27,10 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
+from airimu_core.errors import DataError, InputError
+from airimu_core.rotations import UNIT_NORM_TOL, quat_to_matrix, slerp
+from airimu_core.sequence import GpsFixes, GroundTruth, ImuSequence
 from learned_imu.datasets import _checks
-from learned_imu.datasets._rotations import UNIT_NORM_TOL, quat_to_matrix, slerp
-from learned_imu.datasets.sequence import GpsFixes, GroundTruth, ImuSequence
-from learned_imu.errors import DataError, InputError
 
 VEL_WINDOW_S = 0.05  # s; 11 samples at 200 Hz, chosen on EuRoC V1_02 (3.2 mm/s rms vs the file velocity)
 VEL_POLYORDER = 3

@@ -34,9 +34,9 @@ from typing import Literal
 
 import numpy as np
 
-from learned_imu.datasets._rotations import matrix_to_quat_wxyz, quat_to_matrix, relative_rotvec
-from learned_imu.datasets.sequence import MAX_GAP_STEPS, gap_indices, segments  # noqa: F401 (re-exported: readers, tests)
-from learned_imu.errors import DataError
+from airimu_core.errors import DataError
+from airimu_core.rotations import matrix_to_quat_wxyz, quat_to_matrix, relative_rotvec
+from airimu_core.sequence import MAX_GAP_STEPS, gap_indices, segments  # noqa: F401 (re-exported: readers, tests)
 
 logger = logging.getLogger(__name__)
 

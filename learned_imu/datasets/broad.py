@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
+from airimu_core.errors import DataError
+from airimu_core.sequence import ImuSequence
 from learned_imu.datasets._assemble import GtSamples, ReadChecks, build_sequence
-from learned_imu.datasets.sequence import ImuSequence
-from learned_imu.errors import DataError
 
 GRAVITY = 9.81
 FIELDS = {"imu_gyr": 3, "imu_acc": 3, "opt_quat": 4, "opt_pos": 3}

@@ -21,12 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
+from airimu_core.errors import ConfigError, DataError
+from airimu_core.rotations import QUAT_ORDERS
+from airimu_core.sequence import ImuSequence
+from airimu_core.table import ColumnKey, read_table
 from learned_imu.datasets._assemble import GtSamples, ReadChecks, build_sequence
 from learned_imu.datasets._checks import DEG, STANDARD_GRAVITY, check_timestamps, forward_rows
-from learned_imu.datasets._rotations import QUAT_ORDERS
-from learned_imu.datasets._table import ColumnKey, read_table
-from learned_imu.datasets.sequence import ImuSequence
-from learned_imu.errors import ConfigError, DataError
 
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}  # seconds per unit
 GYRO_UNITS = {"rad/s": 1.0, "deg/s": DEG}  # rad/s per unit

@@ -28,11 +28,11 @@ from pathlib import Path
 
 import numpy as np
 
+from airimu_core.errors import DataError
+from airimu_core.sequence import ImuSequence
+from airimu_core.table import read_table
 from learned_imu.datasets._assemble import GtSamples, ReadChecks, build_sequence, resolve
 from learned_imu.datasets._checks import OnDuplicate, check_timestamps
-from learned_imu.datasets._table import read_table
-from learned_imu.datasets.sequence import ImuSequence
-from learned_imu.errors import DataError
 
 log = logging.getLogger(__name__)
 GRAVITY = 9.81007  # m/s^2, the value AirIMU uses for EuRoC

@@ -23,11 +23,11 @@ from pathlib import Path
 
 import numpy as np
 
+from airimu_core.errors import DataError
+from airimu_core.sequence import GpsFixes, ImuSequence
+from airimu_core.table import read_table
 from learned_imu.datasets._assemble import ReadChecks, build_sequence
 from learned_imu.datasets._checks import check_timestamps
-from learned_imu.datasets._table import read_table
-from learned_imu.datasets.sequence import GpsFixes, ImuSequence
-from learned_imu.errors import DataError
 
 GRAVITY = 9.8  # m/s^2, as gtsam's IMUKittiExampleGPS.py
 GPS_SIGMA = float(np.sqrt(0.07))  # m per axis, from the example's GPS precision 1/0.07

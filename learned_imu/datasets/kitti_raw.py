@@ -42,12 +42,12 @@ from pathlib import Path
 
 import numpy as np
 
+from airimu_core.errors import DataError, DependencyError
+from airimu_core.sequence import GpsFixes, ImuSequence
+from airimu_core.table import read_table
 from learned_imu.datasets._assemble import GtSamples, ReadChecks, build_sequence, resolve
 from learned_imu.datasets._checks import ON_BACKWARD, check_timestamps, forward_rows  # noqa: F401 (ON_BACKWARD: re-exported)
-from learned_imu.datasets._table import read_table
 from learned_imu.datasets.kitti import GPS_SIGMA, read_gps
-from learned_imu.datasets.sequence import GpsFixes, ImuSequence
-from learned_imu.errors import DataError, DependencyError
 
 GRAVITY = 9.80655  # m/s^2, standard gravity (the README's specific-force check used it)
 # The OXTS rate channels lag the attitude by ~40 ms (README "Conventions" 5): over the self-check's default 0.05-s

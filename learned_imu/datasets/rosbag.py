@@ -26,10 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
+from airimu_core.errors import DataError
+from airimu_core.sequence import GpsFixes, ImuSequence
 from learned_imu.datasets._assemble import GtSamples, ReadChecks, build_sequence
 from learned_imu.datasets._checks import OnDuplicate, check_timestamps
-from learned_imu.datasets.sequence import GpsFixes, ImuSequence
-from learned_imu.errors import DataError
 
 logger = logging.getLogger(__name__)
 

@@ -16,7 +16,7 @@ from named grades; a zero field switches that effect off), per sensor:
 
 with M = I + scale-factor and misalignment errors, G the gyro's g-sensitivity, the bias instability a first-order
 Gauss-Markov process, the drift a slow temperature-like sinusoid and vibration intermittent bursts of a
-high-frequency oscillation. Conventions are ``learned_imu.datasets.sequence``'s.
+high-frequency oscillation. Conventions are ``airimu_core.sequence``'s.
 """
 
 from __future__ import annotations
@@ -25,8 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from learned_imu.datasets.sequence import GpsFixes, GroundTruth, ImuSequence
-from learned_imu.errors import InputError
+from airimu_core.errors import InputError
+from airimu_core.sequence import GpsFixes, GroundTruth, ImuSequence
 
 GRAVITY_M_S2 = 9.81
 PROFILES = ("drone", "handheld", "car")

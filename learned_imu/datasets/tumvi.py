@@ -34,10 +34,10 @@ from typing import Literal
 
 import numpy as np
 
+from airimu_core.errors import DataError
+from airimu_core.sequence import ImuSequence
 from learned_imu.datasets._assemble import VEL_WINDOW_S, ReadChecks, build_sequence, resolve
 from learned_imu.datasets.euroc import GRAVITY, read_asl_imu, read_euroc_ground_truth
-from learned_imu.datasets.sequence import ImuSequence
-from learned_imu.errors import DataError
 
 TumviImu = Literal["calibrated", "raw"]
 IMU_FILES = {"calibrated": Path("mav0/imu0/data.csv"), "raw": Path("mav0/imu0/data_raw.csv")}

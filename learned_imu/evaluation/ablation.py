@@ -28,12 +28,12 @@ from pathlib import Path
 
 import numpy as np
 
+from airimu_core.io import write_csv_atomic, write_json_atomic
+from airimu_core.sequence import ImuSequence
 from learned_imu.config import ExperimentConfig
-from learned_imu.datasets.sequence import ImuSequence
 from learned_imu.evaluation import paper
 from learned_imu.evaluation.baselines import average_bias, linear_calibration
 from learned_imu.evaluation.evaluate import evaluate
-from learned_imu.io import write_csv_atomic, write_json_atomic
 from learned_imu.network.checkpoint import model_from_checkpoint
 from learned_imu.network.inference import correct
 from learned_imu.network.model import AirImuNet

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from learned_imu.datasets.sequence import ImuSequence
-from learned_imu.errors import InputError
+from airimu_core.errors import InputError
+from airimu_core.sequence import ImuSequence
 from learned_imu.geometry import so3
 
 

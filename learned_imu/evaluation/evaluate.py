@@ -12,9 +12,9 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import torch
 
+from airimu_core.errors import InputError
+from airimu_core.sequence import ImuSequence
 from learned_imu.config import WINDOW_RULES
-from learned_imu.datasets.sequence import ImuSequence
-from learned_imu.errors import InputError
 from learned_imu.evaluation import metrics
 from learned_imu.geometry.preintegration import NavState, predict, preintegrate
 from learned_imu.training.windows import usable_windows

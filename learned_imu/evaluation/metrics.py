@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from learned_imu.errors import InputError
+from airimu_core.errors import InputError
 
 
 @dataclass(frozen=True, eq=False)

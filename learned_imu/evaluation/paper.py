@@ -68,8 +68,8 @@ TUMVI_IMU: dict[str, dict[str, dict[str, float]]] = {
 # the paper's means over the three rooms, as it prints them
 TUMVI_MEAN = {"Baseline": {"roe_deg": 2.4936, "rpe_m": 0.7910}, "AirIMU": {"roe_deg": 0.4813, "rpe_m": 0.1801}}
 
-# PGO ablation (ATE, m), per sequence, GPS rate (Hz), setting (ours: fusion.pgo.SETTINGS; the paper's "VINS" fixed
-# covariance is our "fixed cov")
+# PGO ablation (ATE, m), per sequence, GPS rate (Hz), setting (ours: airimu.experiments.pgo.SETTINGS; the
+# paper's "VINS" fixed covariance is our "fixed cov")
 EUROC_PGO: dict[str, dict[float, dict[str, float]]] = {
     "MH_04_difficult": {
         1.0: {"raw IMU + fixed cov": 0.1491, "AirIMU + fixed cov": 0.1486, "raw IMU + learned cov": 0.1327,

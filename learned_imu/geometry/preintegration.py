@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import torch
 
-from learned_imu.errors import InputError
+from airimu_core.errors import InputError
 from learned_imu.geometry import so3
 
 # Up to this many (batch x samples) products the rotation scan uses Hillis-Steele doubling (fewer launches).

@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import torch
 
-from learned_imu.errors import InputError
+from airimu_core.errors import InputError
 from learned_imu.geometry import so3
 from learned_imu.geometry.preintegration import (
     Preintegrated,

@@ -29,9 +29,10 @@ from pathlib import Path
 
 import torch
 
-from learned_imu.config import ExperimentConfig, ModelConfig, from_dict, renamed, to_dict
-from learned_imu.errors import ConfigError, DataError, InputError
-from learned_imu.io import atomic_file
+from airimu_core.config import from_dict, renamed, to_dict
+from airimu_core.errors import ConfigError, DataError, InputError
+from airimu_core.io import atomic_file
+from learned_imu.config import ExperimentConfig, ModelConfig
 from learned_imu.network.model import AirImuNet
 
 

@@ -41,8 +41,8 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from learned_imu.errors import DataError, DependencyError, InputError
-from learned_imu.io import atomic_file
+from airimu_core.errors import DataError, DependencyError, InputError
+from airimu_core.io import atomic_file
 from learned_imu.network.model import LOG_DENSITY_LIMIT, AirImuNet
 
 log = logging.getLogger(__name__)

@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from learned_imu.datasets.sequence import ImuSequence
-from learned_imu.errors import InputError
+from airimu_core.errors import InputError
+from airimu_core.sequence import ImuSequence
 from learned_imu.network.model import AirImuNet, Correction, correct_sequence, device_of
 
 MAX_RATE_MISMATCH = 0.1  # relative difference of sample rates a model is applied across

@@ -35,7 +35,7 @@ from dataclasses import dataclass, fields
 import torch
 from torch import nn
 
-from learned_imu.errors import InputError
+from airimu_core.errors import InputError
 
 ACC_INPUT_SCALE_M_S2 = 9.81  # acc is divided by this before the network: inputs of order 1, like gyro in rad/s
 # Initial noise densities: EuRoC's ADIS16448 (datasheet white noise 1.6968e-4 rad/s/sqrt(Hz), 2.0e-3 m/s^2/sqrt(Hz)),

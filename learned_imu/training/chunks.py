@@ -20,8 +20,8 @@ from dataclasses import dataclass, fields
 import numpy as np
 import torch
 
-from learned_imu.datasets.sequence import ImuSequence
-from learned_imu.errors import InputError
+from airimu_core.errors import InputError
+from airimu_core.sequence import ImuSequence
 from learned_imu.geometry.preintegration import NavState, Preintegrated
 from learned_imu.geometry.windowed import preintegrate_windows, window_ends
 from learned_imu.network.model import Correction

@@ -29,7 +29,7 @@ import torch
 import torch.distributed as dist
 from torch import nn
 
-from learned_imu.errors import ConfigError
+from airimu_core.errors import ConfigError
 
 
 @dataclass(frozen=True)

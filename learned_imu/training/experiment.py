@@ -34,12 +34,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from learned_imu.config import ExperimentConfig, SequenceConfig, resolve_device, save_config, to_dict
+from airimu_core.config import to_dict
+from airimu_core.errors import ConfigError, DataError, InputError
+from airimu_core.io import atomic_file, folder_lock, remove_temporaries
+from airimu_core.sequence import ImuSequence
+from learned_imu.config import ExperimentConfig, SequenceConfig, resolve_device, save_config
 from learned_imu.datasets import SIMULATOR, SPLIT
-from learned_imu.datasets.sequence import ImuSequence
-from learned_imu.errors import ConfigError, DataError, InputError
 from learned_imu.evaluation.evaluate import Evaluation, evaluate
-from learned_imu.io import atomic_file, folder_lock, remove_temporaries
 from learned_imu.network.checkpoint import (
     CALIBRATION_FIELDS,
     BestEpoch,
@@ -179,7 +180,7 @@ def train_run(
     ``torchrun`` job (``learned_imu.training.distributed.process_group``); every rank calls this and returns the
     summary.
     ``on_epoch(folder, history)``: called on the writing rank after each epoch's files are written, with the metrics
-    of every epoch so far (``fusion.recording.write_training_recording`` draws them in Rerun). ``progress``: a bar
+    of every epoch so far (``airimu.viz.recording.write_training_recording`` draws them in Rerun). ``progress``: a bar
     per epoch on a terminal, one line per epoch elsewhere (a log file, CI)."""
     folder = Path(folder)
     check_batch_size(config.train.batch_size, world)  # before anything is written

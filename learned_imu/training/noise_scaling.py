@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from learned_imu.datasets.sequence import ImuSequence
-from learned_imu.errors import DataError, InputError
+from airimu_core.errors import DataError, InputError
+from airimu_core.sequence import ImuSequence
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from dataclasses import asdict, dataclass, fields
 import numpy as np
 import torch
 
-from learned_imu.errors import InputError
+from airimu_core.errors import InputError
 from learned_imu.network.model import AirImuNet, Correction, device_of
 from learned_imu.training.chunks import Chunks
 from learned_imu.training.distributed import World, from_writer, global_loss, shard, wrap
@@ -70,7 +70,7 @@ class EpochLog:
 
 def stopped_early(last_epoch: int, best_epoch: int, patience: int) -> bool:
     """The early-stop rule (``train.early_stop_patience``): ``patience`` epochs past the best without a lower
-    validation loss; 0 switches it off. ``training.experiment.train_run`` stops by it and ``fusion.recording``
+    validation loss; 0 switches it off. ``training.experiment.train_run`` stops by it and ``airimu.viz.recording``
     marks a run so stopped."""
     return patience > 0 and last_epoch - best_epoch >= patience
 

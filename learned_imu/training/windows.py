@@ -19,8 +19,8 @@ from dataclasses import dataclass, fields
 import numpy as np
 import torch
 
-from learned_imu.datasets.sequence import ImuSequence, gap_indices
-from learned_imu.errors import InputError
+from airimu_core.errors import InputError
+from airimu_core.sequence import ImuSequence, gap_indices
 from learned_imu.geometry.preintegration import NavState, preintegrate
 from learned_imu.network.model import Correction
 from learned_imu.training.losses import delta_errors
@@ -109,7 +109,7 @@ class Windows:
 
 def usable_windows(sequence: ImuSequence, starts: np.ndarray, length: int, need_valid: bool = True) -> np.ndarray:
     """(W,) bool: windows ``[s, s + length)`` with valid ground truth on all their states (unless not
-    ``need_valid``) and no time gap (``learned_imu.datasets.sequence.gap_indices``: e.g. KITTI's dropped OXTS packets,
+    ``need_valid``) and no time gap (``airimu_core.sequence.gap_indices``: e.g. KITTI's dropped OXTS packets,
     read with ``on_gap="keep"``), so that integration restarts after a gap instead of bridging it."""
     gap = np.zeros(len(sequence), dtype=bool)
     gap[gap_indices(sequence.t)] = True  # sample i is followed by a gap

@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 from gtsam.symbol_shorthand import V, X
 
+from airimu_core.errors import GraphError
 from factors import GpsFactor, gps_noise
-from factors.checks import GraphError, check_values, key_name
+from factors.checks import check_values, key_name
 
 
 def graph_and_values():

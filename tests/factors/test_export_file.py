@@ -8,8 +8,10 @@ import pytest
 import torch
 from gtsam.symbol_shorthand import V, X
 
+from airimu_core.errors import ExportError
+from airimu_core.export import load_export
 from factors import GpsFactor, gps_noise
-from factors.export_file import ExportError, from_export, load_export
+from factors.export_file import from_export
 from learned_imu import preintegrate
 from learned_imu.datasets.simulator import ImuErrorModel, simulate
 from learned_imu.export import export_preintegration, keyframes_every
@@ -132,7 +134,7 @@ def test_ground_truth_is_a_typed_field_all_or_nothing(exported, sequence, tmp_pa
 
 def test_the_export_takes_a_correction(sequence, tmp_path):
     """A model's ``Correction`` exports its corrected samples and per-sample densities, exactly as the arrays do."""
-    from learned_imu.errors import InputError
+    from airimu_core.errors import InputError
     from learned_imu.network.model import Correction
 
     rng = np.random.default_rng(5)
@@ -150,8 +152,8 @@ def test_the_export_takes_a_correction(sequence, tmp_path):
 
 
 def test_keyframe_specs_that_cannot_give_two_keyframes_name_the_recording(tmp_path):
+    from airimu_core.errors import DataError, InputError
     from learned_imu.datasets.simulator import simulate
-    from learned_imu.errors import DataError, InputError
     from learned_imu.export import keyframes_from_spec
 
     seq = simulate("drone", duration_s=10.0, seed=0)

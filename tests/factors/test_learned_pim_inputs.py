@@ -48,7 +48,7 @@ def test_a_time_step_slower_than_any_imu_is_refused(kitti):
 def test_ragged_complex_or_text_inputs_are_refused_by_name_not_by_numpy():
     """numpy would say "setting an array element with a sequence", or cast complex numbers to their real part
     with a warning: the factor API and GpsFixes name the argument instead."""
-    from learned_imu.datasets.sequence import GpsFixes
+    from airimu_core.sequence import GpsFixes
 
     gyro, acc = [[0.0, 0.0, 0.0]] * 2, [[0.0, 0.0, 9.8]] * 2
     cases = [

@@ -8,9 +8,11 @@ import pytest
 import torch
 from gtsam.symbol_shorthand import B, V, X
 
+from airimu_core.errors import PimLayoutError
+from airimu_core.export import load_export
 from factors import LearnedImuFactor
-from factors.export_file import from_export, load_export
-from factors.pim_from_deltas import PimLayoutError, _check_read_back, pim_from_deltas
+from factors.export_file import from_export
+from factors.pim_from_deltas import _check_read_back, pim_from_deltas
 from learned_imu import preintegrate
 from learned_imu.datasets.simulator import simulate
 from learned_imu.export import export_preintegration, keyframes_every

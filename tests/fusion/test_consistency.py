@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from gtsam.symbol_shorthand import X
 
+from airimu.fuse import fuse, write_outputs
 from factors.gps import GpsFactor
 from fusion.consistency import HIGH, LOW, check, residuals
-from fusion.fuse import fuse, write_outputs
 from learned_imu.datasets import read_sequence
 from learned_imu.datasets.simulator import ImuErrorModel, simulate
 
@@ -71,8 +71,8 @@ def test_a_sparse_graph_with_right_inputs_is_not_called_pessimistic(tmp_path):
     """Keyframes every 0.1 s, a fix every 10 s, an IMU with white noise only, fused with its own densities (the
     PGO ablation's graph, anchored at the true first state): the states absorb the IMU residuals (far below 0.01
     per dimension), but per degree of freedom the fit is about 1 and nothing is warned about."""
+    from airimu.experiments.pgo import gps_for
     from fusion.graph import FusionSettings, build_graph, solve
-    from fusion.pgo import gps_for
     from learned_imu.export import export_preintegration, keyframes_every
 
     white = ImuErrorModel(3e-4, 3e-3, 0.0, 0.0, 0.0, 0.0)

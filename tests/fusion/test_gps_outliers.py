@@ -9,10 +9,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from airimu.experiments.pgo import ate_m, gps_for
+from airimu_core.sequence import GpsFixes
 from factors import load_export
 from fusion.graph import FusionSettings, build_graph, solve
-from fusion.pgo import ate_m, gps_for
-from learned_imu.datasets.sequence import GpsFixes
 from learned_imu.datasets.simulator import ImuErrorModel, simulate
 from learned_imu.export import export_preintegration, keyframes_every
 

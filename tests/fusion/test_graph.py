@@ -8,10 +8,10 @@ import gtsam
 import numpy as np
 import pytest
 
+from airimu.experiments.pgo import ate_m, gps_for
+from airimu_core.sequence import GpsFixes
 from factors import load_export
 from fusion.graph import FusionSettings, build_graph, solve, with_marginals
-from fusion.pgo import ate_m, gps_for
-from learned_imu.datasets.sequence import GpsFixes
 from learned_imu.datasets.simulator import ImuErrorModel, simulate
 from learned_imu.export import export_preintegration, keyframes_every
 
@@ -168,9 +168,9 @@ def test_bias_walk_per_interval_or_cumulative_as_gtsams_kitti_example(setup):
     """The walk's sigma between B(k) and B(k+1): sqrt(samples of the interval) times the per-sample sigma, or with
     ``walk="cumulative"`` sqrt(samples since the first keyframe) times it (IMUKittiExampleGPS.py's count, the rule
     of the PGO ablation's GTSAM row); a cumulative walk needs BetweenFactors."""
+    from airimu.experiments.pgo import GTSAM_EXAMPLE
+    from airimu_core.errors import ConfigError
     from fusion.graph import BiasStates
-    from fusion.pgo import GTSAM_EXAMPLE
-    from learned_imu.errors import ConfigError
 
     seq, export = setup
     fuse, _ = gps_for(seq, 1.0, 0.5, seed=0)
@@ -193,8 +193,8 @@ def test_bias_walk_per_interval_or_cumulative_as_gtsams_kitti_example(setup):
 def test_the_first_state_is_a_gtsam_navstate():
     """A (rot, pos, vel) tuple read in another order than learned_imu's NavState(rot, vel, pos): refused, with the
     recipe; a NavState with NaN too."""
+    from airimu_core.errors import InputError
     from fusion.initial import first_state
-    from learned_imu.errors import InputError
 
     pose, vel = first_state(gtsam.NavState(gtsam.Pose3(gtsam.Rot3.Rz(0.3), [1.0, 2.0, 3.0]), [4.0, 5.0, 6.0]), "t")
     assert np.allclose(pose.translation(), [1, 2, 3]) and np.allclose(vel, [4, 5, 6])

@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 import torch
 
+from airimu.experiments.pgo import ate_m, gps_for
+from airimu_core.errors import InputError
+from airimu_core.sequence import GpsFixes
 from factors import load_export
 from fusion.graph import Solution, build_graph, solve
 from fusion.online import OnlineFusion
-from fusion.pgo import ate_m, gps_for
-from learned_imu.datasets.sequence import GpsFixes
 from learned_imu.datasets.simulator import simulate
-from learned_imu.errors import InputError
 from learned_imu.export import export_preintegration, keyframes_every
 from learned_imu.network.checkpoint import TrainedOn
 from learned_imu.network.model import AirImuNet, correct_sequence

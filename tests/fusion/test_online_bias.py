@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 from gtsam.symbol_shorthand import B, V, X
 
+from airimu_core.errors import InputError
 from factors import GpsFactor, gps_noise
 from fusion.graph import BiasStates
 from fusion.initial import priors_on_first
 from fusion.online import OnlineFusion
 from learned_imu.datasets.simulator import ImuErrorModel, simulate
-from learned_imu.errors import InputError
 
 GYRO_COV, ACC_COV = 1e-4**2, 1e-3**2
 # turn-on biases drawn with 0.2 rad/s and 0.1 m/s^2 one-sigma: gyro biases of 0.1-0.3 rad/s, as in ImuFactorExample

@@ -6,8 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from learned_imu.config import ExperimentConfig, from_dict, load_config, to_dict
-from learned_imu.errors import ConfigError
+from airimu_core.config import from_dict, to_dict
+from airimu_core.errors import ConfigError
+from learned_imu.config import ExperimentConfig, load_config
 
 CONFIGS = sorted(p for p in (Path(__file__).parents[2] / "configs").glob("*.yaml") if not p.name.startswith("pgo_"))
 PGO_CONFIGS = sorted((Path(__file__).parents[2] / "configs").glob("pgo_*.yaml"))
@@ -30,7 +31,7 @@ def test_shipped_configs_load_and_point_at_existing_data(shared_data):
 
 
 def test_shipped_pgo_configs_load_and_name_an_experiment():
-    from fusion.config import load_pgo_config
+    from airimu.experiments.pgo_config import load_pgo_config
 
     assert {"pgo_demo.yaml", "pgo_euroc.yaml", "pgo_kitti.yaml"} <= {p.name for p in PGO_CONFIGS}
     for path in PGO_CONFIGS:
@@ -127,7 +128,7 @@ def test_euroc_protocol_configs_choose_on_training_flights_only(shared_data):
 
 def test_data_root_override_moves_every_sequence_list(tmp_path, shared_data):
     """A user's own copy of the official download: ``--data-root`` is where train, val and evaluate are read."""
-    from learned_imu.errors import DataError
+    from airimu_core.errors import DataError
     from learned_imu.training.experiment import load_sequences
 
     root = tmp_path / "official"
@@ -147,7 +148,7 @@ def test_data_root_override_moves_every_sequence_list(tmp_path, shared_data):
 
 
 def test_renamed_keys_name_the_new_key(tmp_path):
-    from fusion.config import load_pgo_config
+    from airimu.experiments.pgo_config import load_pgo_config
 
     pgo = tmp_path / "pgo.yaml"
     pgo.write_text("name: p\nexperiment: e.yaml\nrun: r\noptions: {fixed_gyro_density: 0.004}\n")
@@ -157,7 +158,7 @@ def test_renamed_keys_name_the_new_key(tmp_path):
 
 
 def test_a_variance_given_as_a_noise_density_sigma_is_refused(tmp_path):
-    from fusion.config import load_pgo_config
+    from airimu.experiments.pgo_config import load_pgo_config
 
     pgo = tmp_path / "pgo.yaml"
     pgo.write_text("name: p\nexperiment: e.yaml\nrun: r\noptions: {fixed_gyro_noise_density: 1.6e-8}\n")
@@ -201,7 +202,7 @@ def test_out_of_range_values_are_named_at_load_time(tmp_path, extra, message):
     ],
 )
 def test_out_of_range_pgo_values_are_named(tmp_path, options, message):
-    from fusion.config import load_pgo_config
+    from airimu.experiments.pgo_config import load_pgo_config
 
     pgo = tmp_path / "pgo.yaml"
     pgo.write_text(f"name: p\nexperiment: e.yaml\nrun: r\n{options}\n")

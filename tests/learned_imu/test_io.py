@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from learned_imu.io import write_json_atomic
+from airimu_core.io import write_json_atomic
 
 
 def test_failed_write_keeps_the_previous_file(tmp_path):
@@ -20,7 +20,7 @@ def test_atomic_writes_get_the_usual_permissions(tmp_path):
     """mkstemp makes 0600 files; a written checkpoint or export must be readable like any other file."""
     import os
 
-    from learned_imu.io import write_json_atomic
+    from airimu_core.io import write_json_atomic
 
     mask = os.umask(0o022)
     try:

@@ -14,11 +14,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from airimu_core.errors import DataError
 from learned_imu import preintegrate
 from learned_imu.datasets._checks import check_timestamps, segments
 from learned_imu.datasets.csv import read_csv
 from learned_imu.datasets.euroc import read_euroc
-from learned_imu.errors import DataError
 from learned_imu.geometry.preintegration_reference import preintegrate_loop
 
 PROPERTY = settings(

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import scipy.io
 
+from airimu_core.errors import DataError
 from learned_imu.datasets._checks import frame_score
 from learned_imu.datasets.broad import read_broad
-from learned_imu.errors import DataError
 
 RATE = 2000 / 7  # Hz, 285.714 (the files store 285.71428571)
 TRIAL = "02_undisturbed_slow_rotation_B.mat"

@@ -9,6 +9,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from airimu_core.errors import ConfigError, DataError, InputError
+from airimu_core.rotations import matrix_to_quat_wxyz, quat_to_matrix
+from airimu_core.table import read_table
 from learned_imu.config import SequenceConfig
 from learned_imu.datasets import READERS, ReadChecks, read_sequence
 from learned_imu.datasets._assemble import VEL_WINDOW_S, GtSamples, differentiate_positions, resample_ground_truth
@@ -22,14 +25,11 @@ from learned_imu.datasets._checks import (
     gap_indices,
     segments,
 )
-from learned_imu.datasets._rotations import matrix_to_quat_wxyz, quat_to_matrix
-from learned_imu.datasets._table import read_table
 from learned_imu.datasets.broad import read_broad
 from learned_imu.datasets.csv import read_csv
 from learned_imu.datasets.euroc import read_euroc
 from learned_imu.datasets.kitti import read_kitti
 from learned_imu.datasets.kitti_raw import read_kitti_raw
-from learned_imu.errors import ConfigError, DataError, InputError
 
 
 @pytest.fixture(scope="module")

@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from airimu_core.errors import ConfigError, DataError
+from airimu_core.rotations import matrix_to_quat_wxyz
 from learned_imu.datasets import ReadChecks
-from learned_imu.datasets._rotations import matrix_to_quat_wxyz
 from learned_imu.datasets.csv import read_csv
 from learned_imu.datasets.euroc import read_euroc
-from learned_imu.errors import ConfigError, DataError
 
 HEADER = "stamp_ms,ax_g,ay_g,az_g,wx_dps,wy_dps,wz_dps,px,py,pz,qx,qy,qz,qw"
 NAMED = {

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from airimu_core.errors import DataError
 from learned_imu.datasets import ReadChecks, read_sequence
 from learned_imu.datasets._assemble import differentiate_positions
 from learned_imu.datasets.euroc import read_euroc, read_euroc_ground_truth
-from learned_imu.errors import DataError
 
 MH01_IMU_ROWS = 36820
 MH01_GT_ROWS = 36382  # GT stamps coincide with IMU stamps, so the overlap holds exactly this many IMU samples
@@ -201,7 +201,7 @@ def test_tum_quaternion_in_the_wrong_order_is_named(shared_data, tmp_path):
 def test_a_ground_truth_folder_without_a_known_file_is_named(shared_data, tmp_path, caplog):
     import logging
 
-    from learned_imu.errors import InputError
+    from airimu_core.errors import InputError
     from learned_imu.evaluation.evaluate import evaluate
 
     folder = tmp_path / "V1_02" / "mav0"

@@ -8,9 +8,9 @@ import sys
 import numpy as np
 import pytest
 
+from airimu_core.errors import DataError
 from learned_imu.datasets import ReadChecks, read_sequence
 from learned_imu.datasets.kitti import GPS_SIGMA, read_kitti
-from learned_imu.errors import DataError
 
 IMU_ROWS = 46968  # data rows of KittiEquivBiasedImu.txt; the first is dropped (1.92 s before the second)
 GPS_ROWS = 470

@@ -8,10 +8,10 @@ from datetime import timedelta
 import numpy as np
 import pytest
 
+from airimu_core.errors import DataError, InputError
 from learned_imu.config import SequenceConfig
 from learned_imu.datasets import read_sequence
 from learned_imu.datasets.kitti_raw import OXTS_FIELDS
-from learned_imu.errors import DataError, InputError
 from learned_imu.training.experiment import load_sequence
 
 REPAIR = {"on_backward": "drop", "on_duplicate": "drop", "on_gap": "keep"}

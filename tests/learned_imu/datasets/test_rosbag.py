@@ -12,11 +12,11 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 
+from airimu_core.errors import DataError, InputError
+from airimu_core.rotations import matrix_to_quat_wxyz
 from learned_imu.datasets import ReadChecks
-from learned_imu.datasets._rotations import matrix_to_quat_wxyz
 from learned_imu.datasets.euroc import read_euroc
 from learned_imu.datasets.rosbag import read_rosbag
-from learned_imu.errors import DataError, InputError
 from learned_imu.evaluation.evaluate import evaluate
 
 SAMPLES = 2000  # 10 s at 200 Hz

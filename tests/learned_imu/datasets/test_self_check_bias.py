@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from airimu_core.errors import DataError
 from learned_imu.datasets import read_sequence
 from learned_imu.datasets._checks import check_frame
-from learned_imu.errors import DataError
 
 FLIGHTS = (
     "MH_01_easy",

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import yaml
 
+from airimu_core.errors import AirImuError, ConfigError
 from learned_imu.datasets import read_sequence
 from learned_imu.datasets.tumvi import TUMVI_VEL_WINDOW_S
-from learned_imu.errors import AirImuError, ConfigError
 
 ROOMS = range(1, 7)
 # IMU samples inside the ground-truth span (LGC-Net's copy of the official export holds exactly these rows)

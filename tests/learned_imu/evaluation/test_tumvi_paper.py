@@ -10,10 +10,10 @@ import dataclasses
 import numpy as np
 import pytest
 
+from airimu_core.errors import InputError
+from airimu_core.sequence import GroundTruth, ImuSequence
 from learned_imu.config import load_config
 from learned_imu.datasets import read_sequence
-from learned_imu.datasets.sequence import GroundTruth, ImuSequence
-from learned_imu.errors import InputError
 from learned_imu.evaluation import paper
 from learned_imu.evaluation.ablation import TUMVI_VARIANTS, variants_for
 from learned_imu.evaluation.evaluate import evaluate
@@ -63,7 +63,8 @@ def test_the_tumvi_config_gets_the_tumvi_settings_on_the_same_rooms():
 @pytest.mark.slow
 def test_a_small_tumvi_config_runs_the_ablation_end_to_end(shared_data, tmp_path):
     """Every TUM-VI setting trains (the learned ones) and scores on a slice of the rooms."""
-    from learned_imu.config import ExperimentConfig, from_dict
+    from airimu_core.config import from_dict
+    from learned_imu.config import ExperimentConfig
     from learned_imu.evaluation.ablation import ablate, paper_tables
 
     def room(n, span):

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import torch
 
+from airimu_core.errors import InputError
 from learned_imu.datasets import read_sequence
-from learned_imu.errors import InputError
 from learned_imu.geometry import so3
 from learned_imu.geometry.preintegration import preintegrate
 from learned_imu.geometry.windowed import preintegrate_windows, window_ends

@@ -9,8 +9,9 @@ import re
 import pytest
 import torch
 
-from learned_imu.config import ModelConfig, to_dict
-from learned_imu.errors import DataError
+from airimu_core.config import to_dict
+from airimu_core.errors import DataError
+from learned_imu.config import ModelConfig
 from learned_imu.network.checkpoint import (
     VERSION,
     BestEpoch,
@@ -109,8 +110,8 @@ def test_a_damaged_or_newer_checkpoint_is_named(tmp_path, change, field, message
 
 
 def test_a_model_that_removes_gravity_says_so_and_is_applied_that_way_or_refused(tmp_path):
+    from airimu_core.errors import InputError
     from learned_imu.datasets.simulator import simulate
-    from learned_imu.errors import InputError
     from learned_imu.network.inference import correct, correct_from_checkpoint
 
     path = write_checkpoint(tmp_path / "g.pt", SMALL, build_model(SMALL).state_dict(), remove_gravity=True)
@@ -130,7 +131,7 @@ def test_a_model_that_removes_gravity_says_so_and_is_applied_that_way_or_refused
 
 
 def test_a_checkpoint_record_refuses_what_it_could_not_save(tmp_path):
-    from learned_imu.errors import InputError
+    from airimu_core.errors import InputError
 
     config = load_checkpoint(write_checkpoint(tmp_path / "c.pt", SMALL, build_model(SMALL).state_dict())).config
     with pytest.raises(InputError, match="Checkpoint.config: expected an ExperimentConfig, got dict"):

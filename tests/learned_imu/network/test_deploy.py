@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 import torch
 
+from airimu_core.errors import DataError, InputError
 from learned_imu.config import ModelConfig
-from learned_imu.errors import DataError, InputError
 from learned_imu.network.deploy import StreamingStep, export_checkpoint, export_model
 from learned_imu.network.model import AirImuNet, correct_sequence
 from tests.helpers import write_checkpoint
@@ -223,7 +223,7 @@ def checkpoint(path, model: AirImuNet, remove_gravity: bool = False):
 def test_cli_exports_a_checkpoint_that_onnxruntime_runs(tmp_path):
     from typer.testing import CliRunner
 
-    from fusion.cli import app
+    from airimu.cli import app
 
     model = random_model(use_gru=False, seed=5)
     ckpt = checkpoint(tmp_path / "best.pt", model)
@@ -241,7 +241,7 @@ def test_cli_exports_a_checkpoint_that_onnxruntime_runs(tmp_path):
 def test_bad_format_corrupt_checkpoint_and_gravity_model_give_clear_errors(tmp_path):
     from typer.testing import CliRunner
 
-    from fusion.cli import app
+    from airimu.cli import app
 
     model = random_model(use_gru=False)
     target = tmp_path / "m.onnx"

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 import torch
 
+from airimu_core.errors import InputError
+from airimu_core.sequence import gap_indices
 from learned_imu.datasets import read_sequence
-from learned_imu.datasets.sequence import gap_indices
-from learned_imu.errors import InputError
 from learned_imu.network.model import AirImuNet, Correction
 from learned_imu.training.chunks import Chunks, chunk_offsets, concat_chunks, make_chunks
 from learned_imu.training.losses import LossWeights, total_loss

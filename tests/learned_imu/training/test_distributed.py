@@ -23,8 +23,8 @@ from pathlib import Path
 import pytest
 import torch
 
+from airimu_core.errors import ConfigError
 from learned_imu.config import load_config
-from learned_imu.errors import ConfigError
 from learned_imu.network.checkpoint import load_checkpoint
 from learned_imu.training.distributed import World, check_batch_size, shard, world_from_env
 from learned_imu.training.experiment import RUN_FILES, train_run, with_epochs
@@ -52,7 +52,7 @@ def metrics(run: Path) -> list[dict]:
 def torchrun_train(config: Path, out: Path, epochs: int) -> subprocess.CompletedProcess:
     """``airimu train`` in two processes, as the README launches it."""
     launch = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2"]
-    train = ["-m", "fusion.cli", "train", "--config", str(config), "--out", str(out), "--epochs", str(epochs)]
+    train = ["-m", "airimu.cli", "train", "--config", str(config), "--out", str(out), "--epochs", str(epochs)]
     return subprocess.run([*launch, *train, "--no-progress"], capture_output=True, text=True, timeout=TIMEOUT_S)
 
 

@@ -11,16 +11,10 @@ import pytest
 import torch
 import yaml
 
-from learned_imu.config import (
-    DataConfig,
-    ExperimentConfig,
-    ModelConfig,
-    SequenceConfig,
-    TrainConfig,
-    from_dict,
-)
+from airimu_core.config import from_dict
+from airimu_core.errors import ConfigError, DataError, InputError
+from learned_imu.config import DataConfig, ExperimentConfig, ModelConfig, SequenceConfig, TrainConfig
 from learned_imu.datasets.simulator import ImuErrorModel, simulate_with_truth
-from learned_imu.errors import ConfigError, DataError, InputError
 from learned_imu.evaluation.ablation import VARIANTS, ablate, write_rows
 from learned_imu.evaluation.baselines import average_bias
 from learned_imu.network.checkpoint import load_checkpoint, model_from_checkpoint
@@ -62,8 +56,8 @@ def test_run_folder_holds_config_metrics_and_checkpoints(tmp_path):
     assert not list(run.glob(".*.tmp"))  # no temporary file left behind
     # the checkpoint records the rate it was trained at; data sampled more than 10 % off it is refused
     assert model.trained_on.rate_hz == pytest.approx(200.0) and model.trained_on.datasets == ("simulator",)
+    from airimu_core.errors import InputError
     from learned_imu.datasets.simulator import simulate
-    from learned_imu.errors import InputError
     from learned_imu.network.inference import correct
 
     assert correct(model, simulate("drone", duration_s=2.0, rate_hz=210.0, seed=9)).gyro.shape[1] == 3
@@ -200,7 +194,7 @@ def test_ablation_over_seeds_trains_each_learned_variant_per_seed(tmp_path):
 def test_ablate_imu_cli_with_seeds_prints_the_summary_and_writes_seeded_rows(tmp_path):
     from typer.testing import CliRunner
 
-    from fusion.cli import app
+    from airimu.cli import app
     from learned_imu.config import save_config
 
     config = tmp_path / "tiny.yaml"
@@ -329,7 +323,7 @@ def test_device_option_is_checked_and_a_run_on_auto_reads_back_on_the_cpu(tmp_pa
 def test_cli_refuses_an_unknown_device_and_a_non_positive_epoch_budget(tmp_path):
     from typer.testing import CliRunner
 
-    from fusion.cli import app
+    from airimu.cli import app
     from learned_imu.config import save_config
 
     config = tmp_path / "tiny.yaml"
@@ -372,8 +366,8 @@ def test_rows_of_the_papers_kitti_drives_get_its_kitti_table():
 def test_a_second_writer_of_a_run_folder_is_refused_naming_the_first(tmp_path):
     import os
 
-    from learned_imu.errors import FolderBusyError
-    from learned_imu.io import folder_lock
+    from airimu_core.errors import FolderBusyError
+    from airimu_core.io import folder_lock
 
     run = tmp_path / "run"
     with folder_lock(run):  # as a first `airimu train` holds it

@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from airimu_core.errors import DataError
 from factors import load_export
 from learned_imu.datasets.simulator import ImuErrorModel, simulate
-from learned_imu.errors import DataError
 from learned_imu.export import export_preintegration, keyframes_every
 from learned_imu.network.checkpoint import load_checkpoint
 
@@ -103,7 +103,7 @@ KILL_HOOK = """
 import io, os, signal, sys
 import torch
 import learned_imu.training.experiment as experiment
-from fusion.cli import main
+from airimu.cli import main
 
 MOMENT, KILL_EPOCH = sys.argv[1], int(sys.argv[2])
 real_save, real_metrics, real_torch_save = experiment.save_checkpoint, experiment._write_metrics, torch.save

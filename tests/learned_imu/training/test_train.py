@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from learned_imu.datasets.sequence import GroundTruth, ImuSequence
+from airimu_core.sequence import GroundTruth, ImuSequence
 from learned_imu.datasets.simulator import ImuErrorModel, simulate, simulate_with_truth
 from learned_imu.evaluation.evaluate import evaluate
 from learned_imu.network.model import AirImuNet, Correction, correct_sequence

@@ -1,6 +1,6 @@
 """The PNG of a fusion run (matplotlib, Agg): what a reader of a report wants at a glance.
 
-Three panels, in the colours of the Rerun recording (``fusion.colors``):
+Three panels, in the colours of the Rerun recording (``airimu.viz.colors``):
 
 - ATE per setting and GPS rate: bars with the spread (mean +- std over the GPS seeds), log scale when the values
   span more than a decade;
@@ -19,15 +19,15 @@ from pathlib import Path
 
 import numpy as np
 
-from fusion import colors
+from airimu.viz import colors
 
-SIGMA_SCALE = 3.0  # the bands, in standard deviations (as fusion.recording.SIGMA_SCALE)
+SIGMA_SCALE = 3.0  # the bands, in standard deviations (as airimu.viz.recording.SIGMA_SCALE)
 DPI = 110
 
 
 def plot(result, path: str | Path) -> Path:
-    """A PNG of one sequence's result (``fusion.results.SequenceResult``), written atomically."""
-    from fusion.results import marginal_track
+    """A PNG of one sequence's result (``airimu.viz.results.SequenceResult``), written atomically."""
+    from airimu.viz.results import marginal_track
 
     seq = result.sequence
     fused = {name: marginal_track(solution) for name, (solution, _) in result.examples.items()}
@@ -47,7 +47,7 @@ def plot_run(
     """Write ``figure(...)`` as a PNG, atomically."""
     from matplotlib import pyplot as plt
 
-    from learned_imu.io import atomic_file
+    from airimu_core.io import atomic_file
 
     fig = figure(title, rows, fused, truth, gps)
     with atomic_file(path, "wb") as f:
@@ -57,7 +57,7 @@ def plot_run(
 
 
 def figure(title: str, rows: list, fused: dict, truth, gps):
-    """The matplotlib figure. ``rows``: ``fusion.pgo.PgoRow`` (setting, gps_hz, ate_mean_m, ate_std_m);
+    """The matplotlib figure. ``rows``: ``airimu.experiments.pgo.PgoRow`` (setting, gps_hz, ate_mean_m, ate_std_m);
     ``fused``: setting -> (t (K,) s, pos (K, 3) m, pos_cov (K, 3, 3) m^2 or None) at the first rate;
     ``truth``, ``gps``: (t (N,) s, pos (N, 3) m) or None."""
     import matplotlib

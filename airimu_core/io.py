@@ -17,7 +17,7 @@ LOCK_NAME = ".lock"  # a folder's writer lock (folder_lock)
 
 def output_folder(folder: str | Path) -> Path:
     """Create ``folder`` (and its parents) for output; a path that is a file is an ``InputError`` naming it."""
-    from learned_imu.errors import InputError
+    from airimu_core.errors import InputError
 
     folder = Path(folder)
     try:
@@ -34,7 +34,7 @@ def folder_lock(folder: str | Path) -> Iterator[None]:
     """Hold ``folder``'s writer lock: ``flock`` on ``folder/.lock``, released by the OS however the holder ends (a
     killed run leaves no stale lock). A second writer gets a ``FolderBusyError`` naming the folder and the process
     that holds it. POSIX only; elsewhere nothing is locked."""
-    from learned_imu.errors import FolderBusyError
+    from airimu_core.errors import FolderBusyError
 
     try:
         import fcntl
@@ -68,7 +68,7 @@ def atomic_file(path: str | Path, mode: str = "w") -> Iterator:
     error it is removed. The result has the usual permissions (0666 minus the umask; ``mkstemp`` makes 0600).
     Temporaries of a killed writer of the same target (its process gone) are removed first; a target that is a
     folder, or whose parent is a file, is an ``InputError`` naming it."""
-    from learned_imu.errors import InputError
+    from airimu_core.errors import InputError
 
     path = Path(path)
     if path.is_dir():

@@ -26,7 +26,7 @@ def demo(
     import dataclasses
     from pathlib import Path
 
-    from fusion.config import load_pgo_config
+    from airimu.experiments.pgo_config import load_pgo_config
 
     folder = Path(out)
     config = load_pgo_config("pgo_demo.yaml")  # the shipped config (package airimu_configs)
@@ -50,7 +50,7 @@ def ablate_pgo(
     progress: bool = typer.Option(True, help="show progress bars"),
 ) -> None:
     """The paper's PGO ablation: raw/AirIMU samples x fixed/learned covariance, GPS at each rate, ATE mean +- std."""
-    from fusion.config import load_pgo_config
+    from airimu.experiments.pgo_config import load_pgo_config
 
     _run_pgo(load_pgo_config(config), out, json_out, csv_out, rrd, png, epochs, progress, data_root)
 
@@ -62,10 +62,10 @@ def _run_pgo(config, out, json_out, csv_out, rrd, png, epochs, progress, data_ro
         raise typer.BadParameter(f"--epochs must be at least 1, got {epochs}")
     _check_outputs(files={"--json": json_out, "--csv": csv_out, "--rrd": rrd, "--png": png}, folders={"--out": out})
 
-    from fusion.figures import plot
-    from fusion.pgo import ablate_pgo as run
-    from fusion.pgo import paper_ate, record, write_table
-    from learned_imu.io import folder_lock
+    from airimu.experiments.pgo import ablate_pgo as run
+    from airimu.experiments.pgo import paper_ate, record, write_table
+    from airimu.viz.figures import plot
+    from airimu_core.io import folder_lock
 
     console = _wide_console()
     with folder_lock(out):  # one writer per folder: a second ablate-pgo into it is refused, naming this one
@@ -142,7 +142,7 @@ def fuse(
     mm) or with two columns swapped are refused; a GPS clock offset is warned about with its estimate."""
     from pathlib import Path
 
-    from fusion.fuse import BiasStates, check_gps_clock, check_gps_units, fuse, read_gps_csv, write_outputs
+    from airimu.fuse import BiasStates, check_gps_clock, check_gps_units, fuse, read_gps_csv, write_outputs
 
     if gps_every < 1:
         raise typer.BadParameter(f"--gps-every must be >= 1, got {gps_every}")
@@ -188,7 +188,7 @@ def fuse(
 
         model = model_from_checkpoint(checkpoint)[0]
     states = BiasStates(1.67e-4, 2.91e-6, 0.1, 0.01, factor="combined") if bias else None  # CombinedImuFactor
-    from learned_imu.io import folder_lock
+    from airimu_core.io import folder_lock
 
     with folder_lock(out):  # one writer per folder from here on: a second fuse into it is refused, naming this one
         result = fuse(sequence, used, model, keyframe_s=keyframe_s, bias=states, noise_density=noise)
@@ -211,8 +211,8 @@ def fuse(
 
 
 def _check_noise_flags(gyro: float, acc: float) -> None:
-    from learned_imu.config import check_noise_density
-    from learned_imu.errors import ConfigError
+    from airimu_core.config import check_noise_density
+    from airimu_core.errors import ConfigError
 
     try:
         check_noise_density("gyro", gyro, "--gyro-noise-density")
@@ -323,9 +323,9 @@ def evaluate(
     print the paper's metrics."""
     from rich.table import Table
 
+    from airimu_core.io import write_json_atomic
     from learned_imu.config import INTERVAL_UNITS
     from learned_imu.evaluation.evaluate import evaluate as run_evaluation
-    from learned_imu.io import write_json_atomic
 
     if not (math.isfinite(interval) and interval > 0):
         raise typer.BadParameter(f"--interval must be a positive number, got {interval}")
@@ -369,7 +369,7 @@ def train(
 ) -> None:
     """Train AirIMU (corrections + uncertainty) into a run folder: config.yaml, metrics.jsonl, best.pt, last.pt.
     Launched by torchrun (README: several processes or machines), the processes share each batch."""
-    from fusion.recording import write_training_recording
+    from airimu.viz.recording import write_training_recording
     from learned_imu.training.distributed import process_group
     from learned_imu.training.experiment import train_run
 
@@ -401,7 +401,7 @@ def ablate_imu(
     prints the rows and the paper's tables with its published values beside ours (learned_imu.evaluation.ablation)."""
     from rich.table import Table
 
-    from fusion.recording import write_training_recording
+    from airimu.viz.recording import write_training_recording
     from learned_imu.evaluation.ablation import ablate, paper_tables, write_rows
 
     cfg = _overrides(_load_config(config, data_root), epochs, device)
@@ -585,13 +585,9 @@ def _own_errors() -> tuple[type, ...]:
     import sys
 
     names = {
-        "learned_imu.errors": ("AirImuError",),
+        "airimu_core.errors": ("AirImuError",),
         "factors.export_file": ("ExportError",),
         "factors.checks": ("GraphError",),
         "factors.pim_from_deltas": ("PimLayoutError",),
     }
     return tuple(getattr(sys.modules[m], n) for m, ns in names.items() if m in sys.modules for n in ns)
-
-
-if __name__ == "__main__":  # python -m fusion.cli, as torchrun -m launches it
-    main()

@@ -10,7 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from fusion import colors
+from airimu.viz import colors
 
 SETTINGS = ("raw IMU + fixed cov", "AirIMU + fixed cov", "raw IMU + learned cov", "AirIMU + learned cov")
 
@@ -24,7 +24,7 @@ def _rgba(color) -> int:
 def recording(tmp_path_factory):
     """Ground truth on a circle, four fused settings each a known constant offset from it with a known isotropic
     covariance, two dead-reckoning tracks drifting away, GPS fixes and IMU series."""
-    from fusion.recording import ImuSeries, Track, write_recording
+    from airimu.viz.recording import ImuSeries, Track, write_recording
 
     t = np.linspace(0.0, 10.0, 101)
     truth = Track("ground truth", t, np.column_stack([np.cos(t), np.sin(t), 0.1 * t]))
@@ -188,7 +188,7 @@ train: {window: 200, every: 50, batch_size: 4, epochs: 2, lr: 3e-3, calibration_
 def test_training_is_drawn_in_rerun_and_logged_one_line_per_epoch(tmp_path, capsys):
     import json
 
-    from fusion.recording import write_training_recording
+    from airimu.viz.recording import write_training_recording
     from learned_imu.config import load_config
     from learned_imu.training.experiment import train_run
 
@@ -240,7 +240,7 @@ def test_the_recording_explains_itself(recording):
 
 
 def test_the_training_recording_marks_the_epoch_best_pt_holds(tmp_path):
-    from fusion.recording import write_training_recording
+    from airimu.viz.recording import write_training_recording
     from learned_imu.training.train import EpochLog
 
     losses = [0.9, 0.5, 0.3, 0.35, 0.4]
@@ -257,7 +257,7 @@ def test_the_training_recording_marks_the_epoch_best_pt_holds(tmp_path):
 
 def test_the_training_recording_marks_an_early_stop(tmp_path):
     """A run that stopped early (its config's patience) says so: a cross on the loss at the last epoch, a sentence."""
-    from fusion.recording import write_training_recording
+    from airimu.viz.recording import write_training_recording
     from learned_imu.config import load_config, save_config
     from learned_imu.training.train import EpochLog
 

@@ -1,7 +1,7 @@
 """What fusing one sequence produced, and its views: ``SequenceResult`` (the sequence, the model's correction, the
 ablation rows if any, one solution per setting), ``record`` (a Rerun recording) and ``marginal_track`` (keyframe
 positions with their marginal covariances, computed once per solution and shared by ``record`` and
-``fusion.figures.plot``). Used by the PGO ablation (``fusion.pgo``) and by ``airimu fuse`` (``fusion.fuse``) alike.
+``airimu.viz.figures.plot``). Used by the PGO ablation (``airimu.experiments.pgo``) and by ``airimu fuse`` (``airimu.fuse``) alike.
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from airimu_core.sequence import ImuSequence
 from fusion.graph import with_marginals
-from learned_imu.datasets.sequence import ImuSequence
 from learned_imu.evaluation.evaluate import dead_reckoning
 from learned_imu.network.model import Correction
 
@@ -24,14 +24,14 @@ class SequenceResult:
 
     sequence: ImuSequence
     correction: Correction
-    rows: list  # fusion.pgo.PgoRow, empty for a single fused run
+    rows: list  # airimu.experiments.pgo.PgoRow, empty for a single fused run
     examples: dict
 
 
 def record(result: SequenceResult, path: str | Path) -> Path:
-    """A Rerun recording of one sequence (``fusion.recording``): ground truth, GPS, fused tracks with covariance
+    """A Rerun recording of one sequence (``airimu.viz.recording``): ground truth, GPS, fused tracks with covariance
     ellipsoids, errors against 3-sigma bounds, raw and AirIMU dead reckoning, IMU series, corrections, sigmas."""
-    from fusion.recording import ImuSeries, Track, write_recording
+    from airimu.viz.recording import ImuSeries, Track, write_recording
 
     seq, c = result.sequence, result.correction
     fused = [Track(name, *marginal_track(solution)) for name, (solution, _) in result.examples.items()]

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from learned_imu.errors import DataError
+from airimu_core.errors import DataError
 
 ColumnKey = str | int
 # Far beyond any IMU log (EuRoC flights are 2-3 MB of CSV, a KITTI drive of 100-Hz OXTS a few MB, hours of 1-kHz IMU
@@ -28,7 +28,7 @@ MAX_INPUT_ENV = "AIRIMU_MAX_INPUT_BYTES"
 
 def check_input_size(path: Path, field: str = "file") -> None:
     """A ``DataError`` when the file ``path`` is larger than ``MAX_INPUT_BYTES`` (or ``$AIRIMU_MAX_INPUT_BYTES``)."""
-    from learned_imu.errors import ConfigError
+    from airimu_core.errors import ConfigError
 
     text = os.environ.get(MAX_INPUT_ENV)
     try:

@@ -14,9 +14,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
+from airimu_core.config import check_noise_density, config_path, from_dict, read_yaml
+from airimu_core.errors import ConfigError
 from fusion.graph import BiasStates, FusionSettings
-from learned_imu.config import SequenceConfig, check_noise_density, config_path, from_dict, read_yaml
-from learned_imu.errors import ConfigError
+from learned_imu.config import SequenceConfig
 
 ScoreSpan = Literal["keyframes", "gps"]
 GpsSource = Literal["auto", "simulated", "recorded"]

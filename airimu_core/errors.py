@@ -31,6 +31,20 @@ class DependencyError(AirImuError, ImportError):
     """An optional dependency that a requested feature needs is not installed; the message names the extra."""
 
 
+class ExportError(AirImuError, ValueError):
+    """An export is missing, of another format version, or malformed; the message names file (or export) and field."""
+
+
+class GraphError(AirImuError, ValueError):
+    """A factor graph that cannot be solved as built (a key without a value, an unanchored part, a singular
+    system); the message names the keys."""
+
+
+class PimLayoutError(AirImuError, RuntimeError):
+    """This gtsam's serialisation of a preintegrated measurement is not the layout ``factors.pim_from_deltas``
+    rebuilds; the message names the gtsam version."""
+
+
 class FolderBusyError(AirImuError, RuntimeError):
     """Another process is writing the same run folder; the message names the folder and that process."""
 
@@ -38,8 +52,7 @@ class FolderBusyError(AirImuError, RuntimeError):
 def real_array(value, name: str):
     """``value`` as a float64 numpy array, or an ``InputError`` naming ``name`` when it is not an array of real
     numbers: ragged nested lists (numpy's "setting an array element with a sequence"), text, or complex numbers
-    (which ``np.asarray(..., dtype=float)`` would cast to their real part with only a warning). Its twin, for the
-    factors package (which may not import this one), is ``factors.learned_pim._real``."""
+    (which ``np.asarray(..., dtype=float)`` would cast to their real part with only a warning)."""
     import numpy as np
 
     try:

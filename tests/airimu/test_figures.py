@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.colors import to_rgb
 
-from fusion import colors
-from fusion.figures import figure, plot_run
-from fusion.pgo import PgoRow
+from airimu.experiments.pgo import PgoRow
+from airimu.viz import colors
+from airimu.viz.figures import figure, plot_run
 
 SETTINGS = ("raw IMU + fixed cov", "AirIMU + fixed cov", "raw IMU + learned cov", "AirIMU + learned cov")
 ATE = {1.0: (0.12, 0.10, 0.14, 0.09), 0.1: (13.2, 2.3, 14.2, 2.29)}

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 import torch
 
+from airimu.experiments.pgo import GTSAM_EXAMPLE, SETTINGS, PgoOptions, fixes_on_samples, run_sequence, write_exports
+from airimu_core.errors import ConfigError
+from airimu_core.sequence import GroundTruth, ImuSequence
 from factors import load_export
-from fusion.pgo import GTSAM_EXAMPLE, SETTINGS, PgoOptions, fixes_on_samples, run_sequence, write_exports
-from learned_imu.datasets.sequence import GroundTruth, ImuSequence
 from learned_imu.datasets.simulator import simulate
-from learned_imu.errors import ConfigError
 from learned_imu.network.model import Correction
 
 

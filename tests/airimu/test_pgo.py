@@ -22,7 +22,7 @@ train: {window: 200, every: 50, batch_size: 4, epochs: 2, lr: 3e-3, calibration_
 def ablation(tmp_path_factory):
     from typer.testing import CliRunner
 
-    from fusion.cli import app
+    from airimu.cli import app
 
     tmp = tmp_path_factory.mktemp("pgo")
     (tmp / "tiny.yaml").write_text(TINY)
@@ -90,7 +90,7 @@ def test_recording_reads_back(ablation):
 
 
 def test_pgo_rows_of_the_papers_sequences_carry_its_ate():
-    from fusion.pgo import PgoRow, paper_ate
+    from airimu.experiments.pgo import PgoRow, paper_ate
 
     assert paper_ate(PgoRow("AirIMU + learned cov", 0.1, "V2_02_medium", 0.9, 0.1)) == 0.8927
     assert paper_ate(PgoRow("raw IMU + fixed cov", 1.0, "MH_04_difficult", 0.2, 0.0)) == 0.1491
@@ -98,9 +98,9 @@ def test_pgo_rows_of_the_papers_sequences_carry_its_ate():
 
 
 def test_ate_can_be_scored_between_the_first_and_last_fused_fix(tmp_path):
+    from airimu.experiments.pgo import ate_m
+    from airimu_core.sequence import GpsFixes
     from fusion.graph import Solution, Trajectory
-    from fusion.pgo import ate_m
-    from learned_imu.datasets.sequence import GpsFixes
 
     t = np.arange(0.0, 10.01, 0.5)
     pos = np.zeros((len(t), 3))
@@ -113,8 +113,8 @@ def test_ate_can_be_scored_between_the_first_and_last_fused_fix(tmp_path):
     assert ate_m(solution, truth, fused) == 0.0
     bad = tmp_path / "pgo.yaml"
     bad.write_text("name: x\nexperiment: e.yaml\nrun: r\noptions: {score_span: everywhere}\n")
-    from fusion.config import load_pgo_config
-    from learned_imu.errors import ConfigError
+    from airimu.experiments.pgo_config import load_pgo_config
+    from airimu_core.errors import ConfigError
 
     with pytest.raises(ConfigError, match=r"pgo\.yaml.*options.*score_span.: expected one of keyframes, gps"):
         load_pgo_config(bad)

@@ -1,4 +1,4 @@
-"""``airimu fuse`` / ``fusion.fuse``: a log's IMU and real GPS in, a fused trajectory and its files out."""
+"""``airimu fuse`` / ``airimu.fuse``: a log's IMU and real GPS in, a fused trajectory and its files out."""
 
 from __future__ import annotations
 
@@ -12,9 +12,9 @@ import pytest
 from gtsam.symbol_shorthand import B, X
 from typer.testing import CliRunner
 
-from fusion.cli import app
-from fusion.fuse import read_gps_csv
-from learned_imu.errors import DataError
+from airimu.cli import app
+from airimu.fuse import read_gps_csv
+from airimu_core.errors import DataError
 
 
 @pytest.mark.slow
@@ -151,8 +151,8 @@ def test_fuse_with_bias_states_is_re_linearised_to_a_fixed_point():
     solution (the bias Jacobians alone) lies millimetres to centimetres away."""
     import gtsam
 
+    from airimu.fuse import fuse
     from factors import from_export, load_export
-    from fusion.fuse import fuse
     from fusion.graph import BiasStates, FusionSettings, build_graph, combined_params, solve
     from learned_imu.datasets.simulator import ImuErrorModel, simulate
     from learned_imu.export import export_preintegration, nearest_samples

@@ -6,7 +6,7 @@ Entity layout of a fusion recording, one time line ``time`` in seconds (IMU cloc
   position at every keyframe (a moving marker);
 - ``world/gps``: every fused fix (``Points3D``, static, magenta); ``world/gps/fix``: each fix at its time (marks
   on the time line, the latest fix drawn larger);
-- ``world/fused/<setting>``: the solved trajectory (static, the setting's colour, ``fusion.colors``);
+- ``world/fused/<setting>``: the solved trajectory (static, the setting's colour, ``airimu.viz.colors``);
   ``.../now``: the keyframe at the time cursor; ``.../covariance``: ``Ellipsoids3D`` of the marginal position
   covariance at the keyframe (3-sigma), per keyframe on the time line;
 - ``world/dead_reckoning/<track>``: raw and AirIMU dead reckoning, kept out of the default 3-D view (they drift
@@ -44,8 +44,8 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from fusion import colors
-from learned_imu.datasets._rotations import matrix_to_quat_wxyz
+from airimu.viz import colors
+from airimu_core.rotations import matrix_to_quat_wxyz
 from learned_imu.training.train import EpochLog, stopped_early
 
 TIMELINE = "time"
@@ -405,8 +405,8 @@ def write_training_recording(folder: str | Path, history: list[EpochLog]) -> Pat
 def _early_stop(folder: Path, history: list[dict], best: int) -> tuple[int, int] | None:
     """(planned epochs, patience) when the run in ``folder`` (its ``config.yaml``) stopped early at the last epoch of
     ``history`` (the rule of ``train_run``), else None; None without a readable config too."""
+    from airimu_core.errors import AirImuError
     from learned_imu.config import load_config
-    from learned_imu.errors import AirImuError
 
     try:
         train = load_config(folder / "config.yaml").train
@@ -420,7 +420,7 @@ def _early_stop(folder: Path, history: list[dict], best: int) -> tuple[int, int]
 @contextmanager
 def _saved(path: Path, rec: rr.RecordingStream) -> Iterator[rr.RecordingStream]:
     """``rec`` saving to a temporary file beside ``path``, renamed to ``path`` once everything is logged (rerun
-    writes the file itself, so ``learned_imu.io.atomic_file`` cannot be used); removed on error."""
+    writes the file itself, so ``airimu_core.io.atomic_file`` cannot be used); removed on error."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:

@@ -16,7 +16,7 @@ import torch
 def test_help_lists_commands_without_importing_torch_gtsam_or_rerun():
     code = (
         "import sys\n"
-        "from fusion.cli import app\n"
+        "from airimu.cli import app\n"
         "from typer.testing import CliRunner\n"
         "result = CliRunner().invoke(app, ['--help'])\n"
         "assert result.exit_code == 0, result.output\n"
@@ -45,7 +45,7 @@ def test_demo_runs_through_the_console_script(tmp_path):
 def test_evaluate_writes_the_issue_keys(shared_data, tmp_path):
     from typer.testing import CliRunner
 
-    from fusion.cli import app
+    from airimu.cli import app
 
     out = tmp_path / "metrics.json"
     seq = shared_data / "euroc" / "V1_02_medium"
@@ -85,8 +85,8 @@ train: {window: 200, every: 50, batch_size: 4, epochs: 2, lr: 3e-3}
 def test_train_then_evaluate_and_export_with_the_checkpoint(shared_data, tmp_path):
     from typer.testing import CliRunner
 
-    from factors.export_file import load_export
-    from fusion.cli import app
+    from airimu.cli import app
+    from airimu_core.export import load_export
     from learned_imu.datasets import read_sequence
     from learned_imu.evaluation.evaluate import evaluate
     from learned_imu.network.checkpoint import load_checkpoint, model_from_checkpoint

@@ -20,7 +20,7 @@ first-state prior and Levenberg-Marquardt solver as the other rows (the example 
 
 The product's main job end to end is ``ablate_pgo(config, out)``: it trains the configured model (or finishes its
 interrupted run), corrects every evaluation sequence, runs the ablation (``run_sequence``) and returns what each
-sequence produced (``SequenceResult``), from which ``record`` writes a Rerun recording and ``fusion.figures.plot``
+sequence produced (``SequenceResult``), from which ``record`` writes a Rerun recording and ``airimu.viz.figures.plot``
 a PNG; ``write_table`` writes the rows.
 """
 
@@ -33,14 +33,14 @@ from pathlib import Path
 
 import numpy as np
 
+from airimu.experiments.pgo_config import GPS_SOURCES, PgoConfig, PgoOptions
+from airimu.viz.results import SequenceResult, marginal_track, record  # noqa: F401 (re-exported)
+from airimu_core.errors import ConfigError, InputError
+from airimu_core.sequence import GpsFixes, ImuSequence, gap_indices
 from factors import load_export
 from fusion import consistency
-from fusion.config import GPS_SOURCES, PgoConfig, PgoOptions
 from fusion.graph import BiasStates, FusionSettings, Solution, build_graph, solve
-from fusion.results import SequenceResult, marginal_track, record  # noqa: F401 (re-exported)
 from learned_imu.config import load_config
-from learned_imu.datasets.sequence import GpsFixes, ImuSequence, gap_indices
-from learned_imu.errors import ConfigError, InputError
 from learned_imu.export import export_preintegration, fixes_on_samples, keyframes_every, nearest_samples  # noqa: F401
 from learned_imu.network.checkpoint import model_from_checkpoint
 from learned_imu.network.inference import correct
@@ -274,7 +274,7 @@ def ablate_pgo(
     if epochs:
         experiment = with_epochs(experiment, epochs)
     run = Path(config.run)
-    from fusion.recording import write_training_recording
+    from airimu.viz.recording import write_training_recording
 
     # resumes an interrupted run, drawing its epochs into run/training.rrd; returns at once if finished
     train_run(experiment, run, progress=progress, on_epoch=write_training_recording)
@@ -302,7 +302,7 @@ def write_table(rows: list[PgoRow], json_path: str | Path | None = None, csv_pat
     or null."""
     from dataclasses import asdict
 
-    from learned_imu.io import write_csv_atomic, write_json_atomic
+    from airimu_core.io import write_csv_atomic, write_json_atomic
 
     records = [{**asdict(r), "paper_ate_m": paper_ate(r)} for r in rows]
     if json_path:

@@ -10,11 +10,11 @@ import sys
 import numpy as np
 import pytest
 
+from airimu.cli import main
+from airimu.fuse import check_gps_units, read_gps_csv
+from airimu_core.errors import DataError, InputError
+from airimu_core.sequence import GpsFixes
 from factors.noise import noise_mismatch, white_noise_density
-from fusion.cli import main
-from fusion.fuse import check_gps_units, read_gps_csv
-from learned_imu.datasets.sequence import GpsFixes
-from learned_imu.errors import DataError, InputError
 
 DRIVE = "kitti_raw/2011_10_03_drive_0027.csv"
 REPAIR = ["--reader-option", "on_backward=drop", "--reader-option", "on_duplicate=drop", "--reader-option",
@@ -83,7 +83,7 @@ def test_a_gps_clock_offset_is_estimated_and_warned_about(drive, late, caplog):
     seen in GTSAM's GPS file too; below the 0.3-s floor.)"""
     import re
 
-    from fusion.fuse import check_gps_clock
+    from airimu.fuse import check_gps_clock
     from fusion.gps_units import clock_offset
 
     index = np.arange(0, len(drive.t), 100)
@@ -132,7 +132,7 @@ def test_gps_covering_part_of_the_drive_is_warned_about_and_still_written(drive,
     """Fixes for the first 2 of the drive's 8 minutes: a warning names both uncovered spans; the keyframes after the
     last fix are dead reckoning whose marginals GTSAM cannot compute: NaN covariances with a warning, every file
     written (it was a traceback)."""
-    from fusion.fuse import fuse, write_outputs
+    from airimu.fuse import fuse, write_outputs
 
     index = np.arange(0, 12000, 100)
     index = index[drive.gt.valid[index]]
@@ -193,7 +193,7 @@ def test_fuse_warns_about_a_variance_given_as_a_sigma(shared_data, tmp_path, cap
         "--out",
         tmp_path / "f",
     ]
-    with caplog.at_level(logging.WARNING, logger="fusion.fuse"):
+    with caplog.at_level(logging.WARNING, logger="airimu.fuse"):
         code, _ = run(capsys, monkeypatch, *args)
     assert code == 0
     assert any("1.6e-05" in r.getMessage() and "below" in r.getMessage() for r in caplog.records)
@@ -203,7 +203,7 @@ def test_noise_flags_with_a_checkpoint_are_refused(tmp_path, capsys, monkeypatch
     code, err = run(capsys, monkeypatch, "fuse", "--dataset", "csv", "--path", tmp_path / "x.csv", "--out",
                     tmp_path / "f", "--checkpoint", tmp_path / "best.pt", "--gyro-noise-density", "0.004")  # fmt: skip
     assert code == 2 and err.count("\n") == 1 and "apply without --checkpoint only" in err
-    from fusion.fuse import fuse
+    from airimu.fuse import fuse
     from learned_imu.datasets.simulator import simulate
 
     with pytest.raises(InputError, match="without a model only"):
@@ -228,8 +228,8 @@ def test_ate_is_scored_in_one_frame_and_the_imu_rate_file_is_what_evo_reads(shar
     from evo.core.trajectory import PoseTrajectory3D
     from evo.tools import file_interface
 
+    from airimu_core.rotations import matrix_to_quat_wxyz
     from learned_imu.datasets import read_sequence
-    from learned_imu.datasets._rotations import matrix_to_quat_wxyz
 
     out = tmp_path / "f"
     code, err = run(capsys, monkeypatch, "fuse", "--dataset", "kitti_raw", "--path", shared_data / DRIVE, *REPAIR,
@@ -286,7 +286,7 @@ def test_gps_fixes_take_a_scalar_sigma_and_refuse_a_wrong_shape():
 def test_a_byte_order_mark_is_read_as_the_imu_readers_read_it(tmp_path):
     """Spreadsheets save CSV with a UTF-8 byte-order mark: the GPS reader takes the header after it, and a table
     without a header reads its first row."""
-    from learned_imu.datasets._table import read_table
+    from airimu_core.table import read_table
 
     gps = tmp_path / "gps.csv"
     gps.write_bytes(b"\xef\xbb\xbft,x,y,z\n0,1,2,3\n1,1,2,4\n")
@@ -299,7 +299,7 @@ def test_a_byte_order_mark_is_read_as_the_imu_readers_read_it(tmp_path):
 
 def test_a_second_fuse_into_a_folder_being_written_is_refused_naming_the_writer(shared_data, capsys, monkeypatch,
                                                                                  tmp_path):
-    from learned_imu.io import folder_lock
+    from airimu_core.io import folder_lock
 
     out = tmp_path / "f"
     with folder_lock(out):  # another airimu fuse (or train, ablate-pgo) writing there

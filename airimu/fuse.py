@@ -1,7 +1,7 @@
 """A user's own IMU + GPS log in, a fused trajectory out: ``fuse(sequence, gps, model=None, ...)``, behind ``airimu
 fuse``.
 
-Stage by stage (independent of the PGO ablation's code; the recording and figure of ``fusion.results``): the model
+Stage by stage (independent of the PGO ablation's code; the recording and figure of ``airimu.viz.results``): the model
 corrects the IMU and predicts its noise (or, without a model, the raw samples with fixed noise densities); an export
 holds the keyframe preintegrations, a keyframe at the IMU sample of every fix (fixes inside a gap of the IMU are not
 used) or every ``keyframe_s``; ``fusion.graph`` builds the graph (robust GPS factors by default, optional bias
@@ -33,6 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
+from airimu_core.errors import DataError, InputError
+from airimu_core.sequence import GpsFixes, ImuSequence
 from factors import load_export, solve_relinearised
 from factors.noise import noise_mismatch
 from fusion import consistency
@@ -47,8 +49,6 @@ from fusion.graph import (
     trajectory_of,
 )
 from fusion.initial import lm_params
-from learned_imu.datasets.sequence import GpsFixes, ImuSequence
-from learned_imu.errors import DataError, InputError
 from learned_imu.export import (
     check_keyframe_interval,
     export_preintegration,
@@ -196,7 +196,7 @@ def read_gps_csv(
     as lon and the lon column as lat (``check_gps_units`` tries it)."""
     if angle_unit not in ANGLE_UNITS:
         raise InputError(f"read_gps_csv: angle_unit must be one of {', '.join(ANGLE_UNITS)}, got {angle_unit!r}")
-    from learned_imu.datasets._table import read_table
+    from airimu_core.table import read_table
 
     path = Path(path)
     table = read_table(path, delimiter=",", min_columns=4, field="gps")
@@ -228,7 +228,7 @@ def read_gps_csv(
 
 def gps_file_layout(path: str | Path) -> str:
     """"lat/lon" or "x/y/z": which position columns a GPS CSV has (``read_gps_csv``'s rule)."""
-    from learned_imu.datasets._table import read_table
+    from airimu_core.table import read_table
 
     names = {n.strip().lower() for n in read_table(Path(path), delimiter=",", min_columns=4, field="gps").header}
     return "lat/lon" if {"lat", "lon", "alt"} <= names else "x/y/z"
@@ -322,10 +322,10 @@ def write_outputs(result: Fused, folder: Path, reference: GpsFixes | None = None
     ``pos`` (K, 3) m, ``pos_cov`` (K, 3, 3) m^2, world frame), ``fused.rrd``, ``fused.png`` and ``summary.json``
     (``FusedSummary``: RMSE against the ``reference`` fixes, default the fused ones; the ATE against the ground truth
     where the sequence has one). Returns the summary and the paths."""
-    from fusion.figures import plot
-    from fusion.results import SequenceResult, marginal_track, record
+    from airimu.viz.figures import plot
+    from airimu.viz.results import SequenceResult, marginal_track, record
+    from airimu_core.io import atomic_file, output_folder, write_json_atomic
     from learned_imu.evaluation.metrics import ate_m
-    from learned_imu.io import atomic_file, output_folder, write_json_atomic
 
     folder = output_folder(folder)
     # summary.json is written last and marks a complete folder: a previous run's goes first, so that a rerun

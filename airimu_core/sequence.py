@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from learned_imu.errors import DataError, InputError, real_array
+from airimu_core.errors import DataError, InputError, real_array
 
 MAX_GAP_STEPS = 5.0  # a time step longer than this many median steps is a gap
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from learned_imu.errors import DataError
+from airimu_core.errors import DataError
 
 QUAT_ORDERS = ("wxyz", "xyzw")
 # |q| must be within this of 1: files round to ~6 decimals (error ~1e-6); a wrong column gives a norm far from 1
@@ -39,13 +39,13 @@ def quat_to_matrix(q: np.ndarray, order: str, source: object = "", field: str = 
 
 
 def matrix_to_quat_wxyz(rot: np.ndarray) -> np.ndarray:
-    """(..., 4) unit quaternions (w, x, y, z), w >= 0, of (..., 3, 3) rotation matrices: the numpy face of
-    ``learned_imu.geometry.so3.matrix_to_quaternion_wxyz`` (the toolkit's one conversion), in float64."""
-    import torch
-
-    from learned_imu.geometry.so3 import matrix_to_quaternion_wxyz
-
-    return matrix_to_quaternion_wxyz(torch.as_tensor(np.asarray(rot, dtype=np.float64))).numpy()
+    """(..., 4) unit quaternions (w, x, y, z), w >= 0, of (..., 3, 3) rotation matrices, in float64 (scipy's
+    conversion; ``learned_imu.geometry.so3.matrix_to_quaternion_wxyz`` is its torch twin for autograd)."""
+    rot = np.asarray(rot, dtype=np.float64)
+    xyzw = Rotation.from_matrix(rot.reshape(-1, 3, 3)).as_quat()
+    wxyz = xyzw[:, [3, 0, 1, 2]]
+    wxyz = np.where(wxyz[:, :1] < 0, -wxyz, wxyz)
+    return wxyz.reshape(*rot.shape[:-2], 4)
 
 
 def relative_rotvec(rot_a: np.ndarray, rot_b: np.ndarray) -> np.ndarray:

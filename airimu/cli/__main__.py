@@ -1,0 +1,5 @@
+"""``python -m airimu.cli``, as torchrun -m launches it."""
+
+from airimu.cli import main
+
+main()

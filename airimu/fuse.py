@@ -4,15 +4,12 @@ fuse``.
 Stage by stage (independent of the PGO ablation's code; the recording and figure of ``airimu.viz.results``): the model
 corrects the IMU and predicts its noise (or, without a model, the raw samples with fixed noise densities); an export
 holds the keyframe preintegrations, a keyframe at the IMU sample of every fix (fixes inside a gap of the IMU are not
-used) or every ``keyframe_s``; ``fusion.graph`` builds the graph (robust GPS factors by default, optional bias
+used) or every ``keyframe_s``; ``fusion.graph`` builds the graph (GPS factors, robust ones with ``graph.gps_robust``, optional bias
 states) and Levenberg-Marquardt solves it. The first state is found from the GPS track
 (``fusion.initial.aligned_first_state``), never from ground truth: a sequence's ground truth, if it has one, only
 scores the result.
 
-GPS files (``read_gps_csv``): comma separated with a header naming the columns: time ``t`` (s, on the IMU clock),
-then either ``x, y, z`` (m, a local metric z-up frame) or ``lat, lon, alt`` (degrees, m; converted to a local
-east / north / up frame at the first fix through pymap3d); optional per-fix one-sigma ``sigma`` (m, all axes) or
-``sigma_x, sigma_y, sigma_z``. GTSAM's ``KittiGps_converted.txt`` (``Time,X,Y,Z``) reads as it is.
+GPS files are read by ``learned_imu.datasets.gps.read_gps_csv``.
 
 Not fused wrong in silence: given noise densities that the samples themselves contradict (``factors.noise``: a
 warning naming both numbers when a sigma lies 3x under or 10x over the samples' own white noise: a variance given
@@ -27,42 +24,28 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from airimu_core.errors import DataError, InputError
-from airimu_core.sequence import GpsFixes, ImuSequence
-from factors import load_export, solve_relinearised
+from airimu_core.sequence import GPS_SIGMA_UNKNOWN_M, GpsFixes, ImuSequence
 from factors.noise import noise_mismatch
-from fusion import consistency
-from fusion.graph import (
-    BiasStates,
-    FusionSettings,
-    Solution,
-    Trajectory,
-    build_graph,
-    combined_params,
-    solve,
-    trajectory_of,
-)
-from fusion.initial import lm_params
+from fusion.config import FuseConfig
+from fusion.graph import Solution, Trajectory
+from fusion.solve import solve_export
+from learned_imu.datasets.gps import gps_file_layout, read_gps_csv
 from learned_imu.export import (
     check_keyframe_interval,
-    export_preintegration,
     fixes_on_samples,
     keyframes_every,
     nearest_samples,
+    preintegration_export,
 )
 from learned_imu.network.model import Correction
 
-DEFAULT_GPS_SIGMA_M = 1.0  # per axis, when the file gives none
-# without a model: VINS-Mono's EuRoC setting (sigmas, rad/s/sqrt(Hz) and m/s^2/sqrt(Hz)), a consumer MEMS
-DEFAULT_NOISE_DENSITY = (0.004, 0.08)
 UNCOVERED_WARNING_S = 30.0  # IMU time before the first or after the last fix that is worth a warning
-ANGLE_UNITS = ("deg", "rad")
 UNIT_REFUSAL_RATIO = 3.0  # refused when another reading of the file leaves this many times less motion unexplained
 log = logging.getLogger(__name__)
 
@@ -88,6 +71,60 @@ class FusedSummary:
 
 
 @dataclass(frozen=True, eq=False)
+class FuseRequest:
+    """What ``airimu fuse`` asks for: the log (read), the output folder, the config (flags laid over the file), the
+    GPS (a CSV, else the log's own fixes; ``gps_sigma_m``: a sigma for a file without sigma columns, or replacing
+    the log's fixes' sigmas), every ``gps_every``-th fix fused (all score the result), the GPS clock's offset
+    (subtracted from every fix time) and an optional model checkpoint. ``source`` names the log in messages."""
+
+    sequence: ImuSequence
+    source: str
+    out: Path
+    config: FuseConfig
+    gps_file: str | None = None
+    gps_sigma_m: float | None = None
+    gps_every: int = 1
+    gps_time_offset_s: float = 0.0
+    checkpoint: str | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class FuseDone:
+    """What ``run_fuse`` did: the summary written, the files written, the number of fixes fused."""
+
+    summary: FusedSummary
+    written: list[Path]
+    fused_fixes: int
+
+
+def run_fuse(request: FuseRequest) -> FuseDone:
+    """``airimu fuse``: the GPS read and checked (units, clock), the model loaded, the log fused and the outputs
+    written (``write_outputs``) under a writer lock on the folder (a second run into it is refused)."""
+    from airimu_core.io import folder_lock
+
+    sequence, config = request.sequence, request.config
+    if request.gps_file:
+        fixes = read_gps_csv(request.gps_file, config.gps_sigma_m)
+        check_gps_units(sequence, request.gps_file, fixes, config.gps_sigma_m)
+    elif sequence.gps is None:
+        raise DataError(request.source, "gps", "the log has no GPS fixes; give a GPS file")
+    else:
+        fixes = sequence.gps if request.gps_sigma_m is None else sequence.gps.with_sigma(request.gps_sigma_m)
+    if request.gps_time_offset_s:
+        fixes = dataclasses.replace(fixes, t=fixes.t - request.gps_time_offset_s)
+    check_gps_clock(sequence, request.gps_file or request.source, fixes)
+    model = None
+    if request.checkpoint:
+        from learned_imu.network.checkpoint import model_from_checkpoint
+
+        model = model_from_checkpoint(request.checkpoint)[0]
+    with folder_lock(request.out):  # one writer per folder from here on
+        result = fuse(sequence, fixes[:: request.gps_every], model, config)
+        summary, written = write_outputs(result, request.out, reference=fixes)
+    return FuseDone(summary, written, len(result.gps.t))
+
+
+@dataclass(frozen=True, eq=False)
 class Fused:
     """The result: the solution (``.trajectory`` with marginal position covariances), the model's correction of
     the IMU (raw samples with fixed noise without a model), the fixes that were fused, and the sequence."""
@@ -99,33 +136,25 @@ class Fused:
     residuals: dict = dataclasses.field(default_factory=dict)  # fusion.consistency.residuals of the solution
 
 
-def fuse(
-    sequence: ImuSequence,
-    gps: GpsFixes | None = None,
-    model=None,
-    settings: FusionSettings | None = None,
-    keyframe_s: float | None = None,
-    bias: BiasStates | None = None,
-    noise_density: tuple[float, float] | None = None,
-) -> Fused:
+def fuse(sequence: ImuSequence, gps: GpsFixes | None = None, model=None, config: FuseConfig | None = None) -> Fused:
     """Fuse ``sequence``'s IMU with ``gps`` (default: the sequence's own fixes); see the module docstring.
 
     Args:
-        model: an ``AirImuNet`` (e.g. ``learned_imu.network.checkpoint.model_from_checkpoint(...)[0]``), or None.
-        settings: graph and solver options; default: robust (Huber) GPS factors.
-        keyframe_s: a keyframe every this many seconds; None: one at every fix.
-        bias: estimate a bias state per keyframe (``fusion.graph.BiasStates``).
-        noise_density: (gyro, acc) sigmas, rad/s/sqrt(Hz) and m/s^2/sqrt(Hz), without a model (a model predicts
-            its own noise: giving both is an ``InputError``); None: ``DEFAULT_NOISE_DENSITY``. Given ones are
-            checked against the samples' own white noise (module docstring).
+        model: an ``AirImuNet`` (e.g. ``learned_imu.network.checkpoint.model_from_checkpoint(...)[0]``), or None
+            for the raw samples with the config's noise densities.
+        config: ``fusion.config.FuseConfig`` (default: ``FuseConfig()``, as ``configs/fuse.yaml``): noise without a
+            model, keyframes, bias states, the graph and solver. Noise densities other than the defaults are
+            checked against the samples' own white noise (module docstring); with a model they are refused (the
+            model predicts the IMU's noise).
     """
     from learned_imu.network.inference import correct
 
-    settings = settings or FusionSettings(gps_robust="huber")
+    config = config or FuseConfig()
     where = sequence.source or sequence.name
     fixes = gps if gps is not None else sequence.gps
-    if model is not None and noise_density is not None:
-        raise InputError("fuse: noise_density applies without a model only (the model predicts the IMU's noise)")
+    if model is not None and not config.noise_is_default:
+        raise InputError("fuse: the config's noise densities apply without a model only (the model predicts the IMU's "
+                         "noise)")  # fmt: skip
     if fixes is None or len(fixes.t) < 2:
         raise DataError(where, "gps", "fusing needs at least two GPS fixes")
     sequence = dataclasses.replace(sequence, gps=fixes)
@@ -137,47 +166,27 @@ def fuse(
         log.warning("%s: the IMU runs %.0f s before the first GPS fix and %.0f s after the last: keyframes there are "
                     "dead reckoning (a GPS file of a shorter stretch, or in another time base?)", where, before,
                     after)  # fmt: skip
-    if keyframe_s is None:
+    if config.keyframe_s is None:
         sequence = fixes_on_samples(sequence)
         index = np.unique(nearest_samples(sequence, sequence.gps.t)[0])
     else:
-        check_keyframe_interval(sequence, keyframe_s, f"{keyframe_s:g}s")
-        index = keyframes_every(sequence, keyframe_s)
+        check_keyframe_interval(sequence, config.keyframe_s, f"{config.keyframe_s:g}s")
+        index = keyframes_every(sequence, config.keyframe_s)
     if model is not None:
         correction = correct(model, sequence)
     else:
         import torch
 
-        if noise_density is not None:
-            _check_noise(sequence, noise_density)
+        if not config.noise_is_default:
+            _check_noise(sequence, config.noise_density)
         gyro, acc = torch.as_tensor(sequence.gyro), torch.as_tensor(sequence.acc)
         zero = torch.zeros_like(gyro)
-        gyro_cov, acc_cov = (torch.full_like(gyro, s**2) for s in noise_density or DEFAULT_NOISE_DENSITY)
+        gyro_cov, acc_cov = (torch.full_like(gyro, s**2) for s in config.noise_density)
         correction = Correction(gyro, acc, zero, zero, gyro_cov, acc_cov)
     blind = dataclasses.replace(sequence, gt=None)  # the first state from the GPS track, not from ground truth
-    with tempfile.TemporaryDirectory() as folder:
-        export = load_export(export_preintegration(Path(folder) / "fuse.npz", blind, index, correction=correction))
-        solution = _solved(export, sequence.gps, settings, bias)
-    found = consistency.residuals(solution.graph, solution.values)
-    for message in consistency.check(found):  # the result against its own noise model
-        log.warning("%s: %s", where, message)
+    export = preintegration_export(blind, index, correction=correction)
+    solution, found = solve_export(export, sequence.gps, config)
     return Fused(solution, correction, sequence.gps, sequence, found)
-
-
-def _solved(export, fixes: GpsFixes, settings: FusionSettings, bias: BiasStates | None) -> Solution:
-    """The graph solved; with bias states (and GTSAM's factors) re-linearised: every interval preintegrated again
-    around its solved bias until the biases move less than 1e-6 (``factors.solve_relinearised``)."""
-    graph, values = build_graph(export, fixes, settings, bias=bias)
-    if bias is None or settings.backend != "gtsam":
-        return solve(graph, values, export.keyframe_t, settings)
-    combined = bias.factor == "combined"
-    done = solve_relinearised(graph, values, export, factor="combined" if combined else "imu",
-                              params=combined_params(export, bias) if combined else None,
-                              lm_params=lm_params(settings))  # fmt: skip
-    log.info("%s: bias re-linearisation: %d solves, last bias change %.2g", export.name, done.rounds,
-             done.bias_change)  # fmt: skip
-    trajectory = trajectory_of(done.values, export.keyframe_t)
-    return Solution(trajectory, done.graph, done.values, done.rounds, done.graph.error(done.values))
 
 
 def _check_noise(sequence: ImuSequence, noise_density: tuple[float, float]) -> None:
@@ -188,53 +197,9 @@ def _check_noise(sequence: ImuSequence, noise_density: tuple[float, float]) -> N
             log.warning("%s: %s", sequence.source or sequence.name, message)
 
 
-def read_gps_csv(
-    path: str | Path, sigma_m: float | None = None, angle_unit: str = "deg", swap: bool = False
-) -> GpsFixes:
-    """GPS fixes from a CSV (module docstring); ``sigma_m`` (per axis) where the file has no sigma column;
-    ``angle_unit``: "deg" (the default) or "rad", how the lat/lon columns are read; ``swap``: read the lat column
-    as lon and the lon column as lat (``check_gps_units`` tries it)."""
-    if angle_unit not in ANGLE_UNITS:
-        raise InputError(f"read_gps_csv: angle_unit must be one of {', '.join(ANGLE_UNITS)}, got {angle_unit!r}")
-    from airimu_core.table import read_table
-
-    path = Path(path)
-    table = read_table(path, delimiter=",", min_columns=4, field="gps")
-    if not table.header:
-        raise DataError(path, "header", "a GPS file needs a header naming its columns (t,x,y,z or t,lat,lon,alt)")
-    names = [name.strip().lower() for name in table.header]
-    time = next((n for n in ("t", "time", "t_s", "timestamp") if n in names), None)
-    if time is None:
-        raise DataError(path, "t", f"no time column (t, time, t_s or timestamp) among {table.header}")
-    if {"lat", "lon", "alt"} <= set(names):
-        layout = ("lat", "lon", "alt")
-    elif {"x", "y", "z"} <= set(names):
-        layout = ("x", "y", "z")
-    else:
-        raise DataError(path, "x/y/z", f"expected columns x, y, z or lat, lon, alt; got {table.header}")
-    columns = [table.header[names.index(n)] for n in (time, *layout)]
-    raw = table.columns(columns, "gps")
-    table.require_finite(raw, "gps")
-    t, pos = raw[:, 0], raw[:, 1:4]
-    if np.any(np.diff(t) <= 0):
-        row = int(np.argmax(np.diff(t) <= 0)) + 1
-        raise DataError(path, "t", "time must increase from fix to fix", line=table.line_of(row))
-    if layout[0] == "lat":
-        pos = pos[:, [1, 0, 2]] if swap else pos
-        pos = _enu(np.column_stack([np.degrees(pos[:, :2]), pos[:, 2]]) if angle_unit == "rad" else pos, path)
-    sigma = _sigmas(table, names, path, sigma_m)
-    return GpsFixes(t=t, pos=pos, sigma=sigma)
-
-
-def gps_file_layout(path: str | Path) -> str:
-    """"lat/lon" or "x/y/z": which position columns a GPS CSV has (``read_gps_csv``'s rule)."""
-    from airimu_core.table import read_table
-
-    names = {n.strip().lower() for n in read_table(Path(path), delimiter=",", min_columns=4, field="gps").header}
-    return "lat/lon" if {"lat", "lon", "alt"} <= names else "x/y/z"
-
-
-def check_gps_units(sequence: ImuSequence, path: str | Path, fixes: GpsFixes, sigma_m: float | None = None) -> None:
+def check_gps_units(
+    sequence: ImuSequence, path: str | Path, fixes: GpsFixes, sigma_m: float = GPS_SIGMA_UNKNOWN_M
+) -> None:
     """Refuse a GPS file whose track the IMU explains far worse as read than in another unit: the file re-read
     with lat/lon in radians (lat/lon files), or x/y/z scaled as km or mm (x/y/z files); a ``DataError`` naming the
     columns and the likely unit when another reading leaves ``UNIT_REFUSAL_RATIO`` times less motion unexplained
@@ -291,29 +256,6 @@ def check_gps_clock(sequence: ImuSequence, source: object, fixes: GpsFixes) -> f
         "(subtracted from every fix time) if so.", source, abs(offset), side, at_offset, as_read, offset,
     )  # fmt: skip
     return offset
-
-
-def _sigmas(table, names: list[str], path: Path, sigma_m: float | None) -> np.ndarray:
-    n = table.data.shape[0]
-    if {"sigma_x", "sigma_y", "sigma_z"} <= set(names):
-        sigma = table.columns([table.header[names.index(f"sigma_{a}")] for a in "xyz"], "gps")
-    elif "sigma" in names:
-        sigma = np.repeat(table.columns([table.header[names.index("sigma")]], "gps"), 3, axis=1)
-    else:
-        sigma = np.full((n, 3), DEFAULT_GPS_SIGMA_M if sigma_m is None else float(sigma_m))
-    if not np.all(np.isfinite(sigma) & (sigma > 0)):
-        row = int(np.argmax(~np.all(np.isfinite(sigma) & (sigma > 0), axis=1)))
-        raise DataError(path, "sigma", "one-sigma GPS noise must be positive (m)", line=table.line_of(row))
-    return sigma
-
-
-def _enu(geodetic: np.ndarray, path: Path) -> np.ndarray:
-    import pymap3d
-
-    lat, lon, alt = geodetic.T
-    if (np.abs(lat) > 90).any() or (np.abs(lon) > 180).any():
-        raise DataError(path, "lat/lon", "not a position in degrees")
-    return np.stack(pymap3d.geodetic2enu(lat, lon, alt, lat[0], lon[0], alt[0]), axis=1)
 
 
 def write_outputs(result: Fused, folder: Path, reference: GpsFixes | None = None) -> tuple[FusedSummary, list[Path]]:

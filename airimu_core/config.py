@@ -93,8 +93,9 @@ def check_noise_density(sensor: str, sigma: float, where: str) -> None:
     """A ``ConfigError`` naming ``where`` if ``sigma`` (a ``*_noise_density``) is outside ``NOISE_DENSITY_RANGE``."""
     low, high = NOISE_DENSITY_RANGE[sensor]
     unit = "rad/s/sqrt(Hz)" if sensor == "gyro" else "m/s^2/sqrt(Hz)"
-    if not (math.isfinite(sigma) and low <= sigma <= high):
-        hint = " (a variance, sigma^2? give sigma)" if 0 < sigma < low else ""
+    number = isinstance(sigma, int | float) and not isinstance(sigma, bool)
+    if not (number and math.isfinite(sigma) and low <= sigma <= high):
+        hint = " (a variance, sigma^2? give sigma)" if number and 0 < sigma < low else ""
         raise ConfigError(
             f"{where}: {sigma!r} is not a {sensor} noise density sigma in [{low:g}, {high:g}] {unit}{hint}"
         )

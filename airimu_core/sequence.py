@@ -60,6 +60,11 @@ class GroundTruth:
     valid: np.ndarray
 
 
+# one-sigma GPS noise per axis (m) of fixes whose source states none (a CSV without sigma columns, a NavSatFix
+# without covariance): a consumer receiver's open-sky figure. ``fusion.config.FuseConfig.gps_sigma_m`` defaults to it
+GPS_SIGMA_UNKNOWN_M = 1.0
+
+
 @dataclass(frozen=True, eq=False)
 class GpsFixes:
     """GNSS position fixes (a measurement, not ground truth).
@@ -95,6 +100,10 @@ class GpsFixes:
     def __getitem__(self, index) -> GpsFixes:
         """The fixes at ``index`` (a slice, boolean mask or index array)."""
         return GpsFixes(self.t[index], self.pos[index], self.sigma[index])
+
+    def with_sigma(self, sigma_m: float) -> GpsFixes:
+        """The same fixes with one-sigma ``sigma_m`` (m) on every axis of every fix."""
+        return GpsFixes(self.t, self.pos, float(sigma_m))
 
 
 @dataclass(frozen=True, eq=False)

@@ -12,9 +12,7 @@ from __future__ import annotations
 
 import argparse
 import resource
-import tempfile
 import time
-from pathlib import Path
 
 import torch
 
@@ -31,10 +29,10 @@ def main() -> None:
     args = parser.parse_args()
 
     from airimu.experiments.pgo import ate_m, gps_for
-    from factors import load_export
-    from fusion.graph import FusionSettings, build_graph, solve
+    from fusion.config import FusionSettings
+    from fusion.graph import build_graph, solve
     from learned_imu.datasets.simulator import simulate
-    from learned_imu.export import export_preintegration, keyframes_every
+    from learned_imu.export import keyframes_every, preintegration_export
     from learned_imu.network.checkpoint import model_from_checkpoint
     from learned_imu.network.model import AirImuNet, correct_sequence
 
@@ -43,32 +41,31 @@ def main() -> None:
     print(f"simulated {len(seq):,} samples in {time.perf_counter() - clock:.1f} s (peak {peak_mb():.0f} MB)")
     model = model_from_checkpoint(args.checkpoint)[0] if args.checkpoint else AirImuNet().eval()
 
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "long.npz"
-        clock = time.perf_counter()
-        out = correct_sequence(model, torch.as_tensor(seq.gyro, dtype=torch.float32),
-                               torch.as_tensor(seq.acc, dtype=torch.float32))  # fmt: skip
-        inference = time.perf_counter() - clock
-        noise = (out.gyro_cov.double().numpy(), out.acc_cov.double().numpy())
-        export_preintegration(path, seq, keyframes_every(seq, 1.0), *noise, out.gyro.double().numpy(),
-                              out.acc.double().numpy())  # fmt: skip
-        total = time.perf_counter() - clock
-        print(f"inference {inference:.1f} s + export {total - inference:.1f} s = {total:.1f} s "
-              f"(target < 60 s), peak memory {peak_mb():.0f} MB (target < 2048 MB)")  # fmt: skip
+    clock = time.perf_counter()
+    out = correct_sequence(model, torch.as_tensor(seq.gyro, dtype=torch.float32),
+                           torch.as_tensor(seq.acc, dtype=torch.float32))  # fmt: skip
+    inference = time.perf_counter() - clock
+    noise = (out.gyro_cov.double().numpy(), out.acc_cov.double().numpy())
+    export = preintegration_export(seq, keyframes_every(seq, 1.0), *noise, out.gyro.double().numpy(),
+                                out.acc.double().numpy())  # fmt: skip
+    total = time.perf_counter() - clock
+    print(f"inference {inference:.1f} s + export {total - inference:.1f} s = {total:.1f} s "
+          f"(target < 60 s), peak memory {peak_mb():.0f} MB (target < 2048 MB)")  # fmt: skip
 
-        if args.no_graph:
-            return
-        export = load_export(path)
-        fuse, truth = gps_for(seq, 1.0, 0.1, seed=0)
-        settings = FusionSettings()
-        clock = time.perf_counter()
-        graph, values = build_graph(export, fuse, settings)
-        built = time.perf_counter() - clock
-        solution = solve(graph, values, export.keyframe_t, settings)
-        total = time.perf_counter() - clock
-        print(f"graph: {len(export.keyframe_t):,} states, {graph.size():,} factors; build {built:.1f} s + solve "
-              f"{total - built:.1f} s = {total:.1f} s (target < 30 s), {solution.iterations} LM iterations, "
-              f"ATE {ate_m(solution, truth):.3f} m")  # fmt: skip
+    if args.no_graph:
+        return
+    fuse, truth = gps_for(seq, 1.0, 0.1, seed=0)
+    settings = FusionSettings()
+    clock = time.perf_counter()
+    graph, values = build_graph(export, fuse, settings)
+    built = time.perf_counter() - clock
+    solution = solve(graph, values, export.keyframe_t, settings)
+    total = time.perf_counter() - clock
+    print(f"graph: {len(export.keyframe_t):,} states, {graph.size():,} factors; build {built:.1f} s + solve "
+          f"{total - built:.1f} s = {total:.1f} s (target < 30 s), {solution.iterations} LM iterations, "
+          f"ATE {ate_m(solution, truth):.3f} m")  # fmt: skip
+
+
 
 
 if __name__ == "__main__":

@@ -25,7 +25,10 @@ def run(seq, gps, model, keyframe_s: float, block: int, smoother: str, lag_s: fl
     from fusion.online import OnlineFusion
 
     first = gtsam.NavState(gtsam.Pose3(gtsam.Rot3(seq.gt.rot[0]), seq.gt.pos[0]), seq.gt.vel[0])
-    fusion = OnlineFusion(model, seq.gravity, first, keyframe_s, 1e-3**2, 1e-2**2, smoother=smoother, lag_s=lag_s)
+    from fusion.config import FuseConfig, OnlineSettings
+
+    online = OnlineSettings(keyframe_s=keyframe_s, smoother=smoother, lag_s=lag_s)
+    fusion = OnlineFusion(model, seq.gravity, first, FuseConfig(1e-3, 1e-2, online=online))
     times: dict[str, list[float]] = {"imu (buffer only)": [], "imu + keyframe update": [], "gps": [], "state": []}
     fix = 0
     clock = time.perf_counter

@@ -5,8 +5,8 @@
 ``kitti_gtsam`` (471 s of 100 Hz OXTS IMU, its 1 Hz GPS) streamed into ``fusion.online.OnlineFusion`` in blocks of 10
 samples with 1-s keyframes, each fix once the IMU has passed it: first without bias states (the default noise 0.004
 / 0.08), then with GTSAM's example settings (its noise densities, its bias prior and cumulative walk:
-``airimu.experiments.pgo.GTSAM_EXAMPLE``) at each ``relinearise_tol``. Prints the wall time, ms per keyframe, the intervals
-preintegrated again and the RMSE of the keyframes against every fix (the first state: identity attitude at the first
+``airimu.experiments.pgo.GTSAM_EXAMPLE``) at each ``bias_relinearize_tol``. Prints the wall time, ms per keyframe,
+the intervals preintegrated again and the RMSE of the keyframes against every fix (the first state: identity attitude at the first
 fix, as the drive has no ground truth here).
 """
 
@@ -20,6 +20,7 @@ import gtsam
 import numpy as np
 
 from airimu.experiments.pgo import GTSAM_EXAMPLE
+from fusion.config import FuseConfig, OnlineSettings
 from fusion.online import OnlineFusion
 from learned_imu.datasets import read_sequence
 
@@ -50,16 +51,19 @@ def rmse_to_gps(seq, fusion: OnlineFusion) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", default=str(Path(__file__).resolve().parents[2] / "shared" / "data"))
-    parser.add_argument("--tol", type=float, nargs="+", default=[1e-1, 1e-2, 1e-3], help="relinearise_tol values")
+    parser.add_argument("--tol", type=float, nargs="+", default=[1e-1, 1e-2, 1e-3], help="bias_relinearize_tol values")
     args = parser.parse_args()
     seq = read_sequence("kitti", Path(args.data) / "kitti_gtsam")
     first = gtsam.NavState(gtsam.Pose3(gtsam.Rot3(), seq.gps.pos[0]), np.zeros(3))
     gyro, acc = GTSAM_EXAMPLE.noise_density
-    runs = [("no bias states", dict(gyro_cov=0.004**2, acc_cov=0.08**2))]
-    runs += [(f"bias states, relinearise_tol {tol:g}", dict(gyro_cov=gyro**2, acc_cov=acc**2, bias=GTSAM_EXAMPLE.bias,
-                                                             relinearise_tol=tol)) for tol in args.tol]  # fmt: skip
-    for name, options in runs:
-        fusion = OnlineFusion(None, seq.gravity, first, 1.0, **options)
+    runs = [("no bias states", FuseConfig())]
+    runs += [
+        (f"bias states, bias_relinearize_tol {tol:g}",
+         FuseConfig(gyro, acc, estimate_bias=True, bias=GTSAM_EXAMPLE.bias, online=OnlineSettings(bias_relinearize_tol=tol)))
+        for tol in args.tol
+    ]  # fmt: skip
+    for name, config in runs:
+        fusion = OnlineFusion(None, seq.gravity, first, config)
         seconds = stream(seq, fusion)
         rmse = rmse_to_gps(seq, fusion)
         print(f"{name}: {seconds:.2f} s, {1e3 * seconds / fusion.keyframes:.1f} ms a keyframe ({fusion.keyframes}), "

@@ -23,12 +23,11 @@ import logging
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
 
 import gtsam
 import numpy as np
 
-from airimu_core.errors import ConfigError, GraphError, InputError
+from airimu_core.errors import GraphError, InputError
 from airimu_core.io import atomic_file
 from airimu_core.rotations import matrix_to_quat_wxyz
 from airimu_core.sequence import GpsFixes
@@ -42,6 +41,7 @@ from factors import (
     load_export,
     solve_or_explain,
 )
+from fusion.config import BiasStates, FusionSettings
 from fusion.initial import (
     ALIGNED_PRIOR_SIGMAS,
     aligned_first_state,
@@ -60,87 +60,6 @@ X, V, B = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V, gtsam.symbol_short
 # GPS fixes are the readers' record, airimu_core.sequence.GpsFixes (t (M,) s on the IMU clock, pos (M, 3)
 # world frame m, sigma (M, 3) one-sigma m); ``Gps`` is its former name here, kept for code written against it
 Gps = GpsFixes
-
-
-@dataclass(frozen=True)
-class FusionSettings:
-    """Graph and solver options (``configs/pgo_*.yaml``'s ``fusion`` block)."""
-
-    backend: Literal["gtsam", "custom"] = "gtsam"  # C++ ImuFactor, or factors.LearnedImuFactor
-    gps_robust: Literal["huber", "cauchy"] | None = None  # robust loss of the GPS factors; None: Gaussian
-    lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # antenna in the IMU frame
-    prior_rot_sigma_rad: float = 0.01
-    prior_pos_sigma_m: float = 0.1
-    prior_vel_sigma_m_s: float = 0.1
-    max_iterations: int = 100
-    relative_error_tol: float = 1e-6
-    absolute_error_tol: float = 1e-6
-    init_window: int = 100  # keyframes per window of the sequential initialisation
-
-    def __post_init__(self):
-        for key in ("prior_rot_sigma_rad", "prior_pos_sigma_m", "prior_vel_sigma_m_s"):
-            value = getattr(self, key)
-            if not (np.isfinite(value) and value > 0):
-                raise ConfigError(f"fusion.{key} must be a positive sigma, got {value!r}")
-        for key in ("relative_error_tol", "absolute_error_tol"):
-            value = getattr(self, key)
-            if not (np.isfinite(value) and value >= 0):
-                raise ConfigError(f"fusion.{key} must be a number >= 0, got {value!r}")
-        for key in ("max_iterations", "init_window"):
-            if getattr(self, key) < 1:
-                raise ConfigError(f"fusion.{key} must be a whole number >= 1, got {getattr(self, key)!r}")
-        if self.backend not in ("gtsam", "custom"):
-            raise ConfigError(f"fusion.backend must be one of gtsam, custom, got {self.backend!r}")
-        if self.gps_robust not in (None, "huber", "cauchy"):
-            raise ConfigError(f"fusion.gps_robust must be null, huber or cauchy, got {self.gps_robust!r}")
-        if len(self.lever_arm_m) != 3 or not all(np.isfinite(self.lever_arm_m)):
-            raise ConfigError(f"fusion.lever_arm_m must be 3 finite numbers (m), got {list(self.lever_arm_m)!r}")
-
-
-BIAS_WALKS = ("per_interval", "cumulative")
-
-
-@dataclass(frozen=True)
-class BiasStates:
-    """A bias state per keyframe: ``B(k) - B(k+1)`` is zero-mean with sigma ``sqrt(count) * walk_sigma`` per axis and
-    ``B(0)`` has a zero-mean prior. Sigmas (standard deviations): acc in m/s^2, gyro in rad/s; ``walk_sigma`` is per
-    IMU sample.
-
-    ``walk``: what ``count`` is. ``"per_interval"`` (default): the samples between the two keyframes, which is a
-    per-sample random walk (its standard deviation over n samples is ``sqrt(n) * walk_sigma``). ``"cumulative"``:
-    the samples from the first keyframe to keyframe k+1, GTSAM's ``IMUKittiExampleGPS.py`` rule (its
-    ``included_imu_measurement_count`` is never reset), a walk that loosens with the time since the start (about 20x
-    at the end of its 470-s drive); use it to run that example's settings exactly (``airimu.experiments.pgo.GTSAM_EXAMPLE``)."""
-
-    acc_walk_sigma: float
-    gyro_walk_sigma: float
-    acc_prior_sigma: float
-    gyro_prior_sigma: float
-    # "between": gtsam.ImuFactor per interval and a BetweenFactorConstantBias of the random walk (the example's
-    # graph); "combined": gtsam.CombinedImuFactor, whose preintegration carries the same random walk (as a
-    # continuous-time density, walk_sigma^2 / dt) and the learned per-sample noise (factors.learned_combined_pim)
-    factor: str = "between"
-    walk: str = "per_interval"
-
-    def __post_init__(self):
-        if self.factor not in ("between", "combined"):
-            raise ConfigError(f"BiasStates.factor must be 'between' or 'combined', got {self.factor!r}")
-        if self.walk not in BIAS_WALKS:
-            raise ConfigError(f"BiasStates.walk must be one of {', '.join(BIAS_WALKS)}, got {self.walk!r}")
-        if self.factor == "combined" and self.walk != "per_interval":
-            raise ConfigError(
-                "BiasStates.walk: 'cumulative' needs factor 'between' (a CombinedImuFactor's preintegration carries "
-                "the walk over its own interval only)"
-            )
-        for name in ("acc_walk_sigma", "gyro_walk_sigma", "acc_prior_sigma", "gyro_prior_sigma"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
-                raise ConfigError(f"BiasStates.{name} must be a positive number, got {value!r}")
-
-    def walk_sigmas(self, samples: np.ndarray) -> np.ndarray:
-        """(K, 6) sigmas [acc x3, gyro x3] of the walk over K intervals of ``samples`` (K,) IMU samples each."""
-        count = np.cumsum(samples) if self.walk == "cumulative" else np.asarray(samples)
-        return np.sqrt(count)[:, None] * np.array([self.acc_walk_sigma] * 3 + [self.gyro_walk_sigma] * 3)
 
 
 @dataclass(frozen=True, eq=False)

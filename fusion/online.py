@@ -24,8 +24,8 @@ With ``bias=BiasStates(...)`` (``factor="between"``, GTSAM's ``IMUKittiExampleGP
 estimated: a prior on ``B(0)``, the random walk ``B(k) -> B(k+1)`` (``BiasStates.walk_sigmas``), and each interval
 preintegrated around the latest estimate of its bias (GTSAM's ``biasHat``). With the ``"isam2"`` smoother the
 re-linearisation of ``factors.solve_relinearised`` is built in: after every update, each interval whose bias estimate
-has moved more than ``relinearise_tol`` (rad/s and m/s^2) from the bias it was preintegrated around is preintegrated
-again around the estimate, and its ``ImuFactor`` swapped in the smoother (``ISAM2.update``'s
+has moved more than ``FuseConfig.online.bias_relinearize_tol`` (rad/s and m/s^2) from the bias it was preintegrated
+around is preintegrated again around the estimate, and its ``ImuFactor`` swapped in the smoother (``ISAM2.update``'s
 ``removeFactorIndices``); ``flush`` repeats this until no bias moves more than the tolerance. The result equals
 GTSAM's own graph preintegrated at the converged biases (``tests/fusion/test_online_bias.py``: 1e-6 m). This keeps
 every interval's samples (13 floats a sample). The fixed-lag smoother estimates the biases too, each interval
@@ -43,19 +43,13 @@ import numpy as np
 
 from airimu_core.errors import AirImuError, InputError, real_array
 from factors import GpsFactor, gps_noise, learned_pim
-from factors.gps import ROBUST_LOSSES
 from factors.noise import noise_mismatch
-from fusion.graph import BiasStates, Trajectory
+from fusion.config import FuseConfig
+from fusion.graph import Trajectory
 from fusion.initial import first_state, priors_on_first
 
 log = logging.getLogger(__name__)
 X, V, B = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V, gtsam.symbol_shorthand.B
-SMOOTHERS = ("isam2", "fixed_lag")
-# ISAM2 relinearises a variable whose update exceeds this (rad, m, m/s), checked at every update from the root down
-# only as far as cliques need it (partial check: a full check relinearised far-back stretches of the trajectory and
-# made updates several times slower). GTSAM's default threshold 0.1 left the online solution further from the batch
-# LM one than this; both measured in BENCHMARKS.md, "Design measurements".
-RELINEARIZE_THRESHOLD = 0.01
 RATE_CHECK_SAMPLES = 20  # samples seen before the stream's rate is compared with the model's training rate
 CONVERGE_ROUNDS = 20  # flush's re-linearisation rounds at most (bias states with ISAM2)
 NOISE_CHECK_SAMPLES = 400  # raw samples seen before given densities are compared with the stream's white noise
@@ -99,83 +93,40 @@ class OnlineFusion:
     """Incremental IMU + GPS fusion with learned IMU factors (see the module docstring).
 
     Args:
-        model: an ``AirImuNet`` in eval mode, or None for the raw samples with ``gyro_cov`` / ``acc_cov``.
+        model: an ``AirImuNet`` in eval mode, or None for the raw samples with the config's noise densities.
         gravity: (3,) gravity vector in the world frame, m/s^2.
         initial_state: ``gtsam.NavState`` (pose world <- IMU, world velocity m/s) at the first IMU sample: the prior's
             mean.
-        keyframe_s: keyframe interval, s (each keyframe costs CPU time: BENCHMARKS.md, "Online fusion").
-        gyro_cov, acc_cov: noise densities without a model, sigma^2: rad^2/s and m^2/s^3 (float or (3,)); None:
-            ``DEFAULT_GYRO_COV`` / ``DEFAULT_ACC_COV``. Given ones are compared with the stream's own white noise
-            once ``NOISE_CHECK_SAMPLES`` samples are in, and warned about 3x under or 10x over it (a sigma given as
-            sigma^2, or the reverse).
-        smoother: ``"isam2"`` (keeps every keyframe) or ``"fixed_lag"`` (keeps the last ``lag_s`` seconds; an older
-            keyframe's trajectory entry is its estimate when it left the window).
-        lag_s: window of the fixed-lag smoother, s.
-        prior_rot_sigma_rad, prior_pos_sigma_m, prior_vel_sigma_m_s: one-sigma prior on the first state.
-        gps_robust: None, ``"huber"`` or ``"cauchy"`` (``factors.gps_noise``).
-        lever_arm_m: (3,) GPS antenna position in the IMU frame, m.
-        bias: estimate a bias state per keyframe (``fusion.graph.BiasStates`` with ``factor="between"``; module
-            docstring); None: the corrected samples' bias is zero.
-        relinearise_tol: with ``bias`` and ``"isam2"``, an interval is preintegrated again once its bias estimate
-            moved more than this (rad/s, m/s^2) from the one it was preintegrated around.
-        relinearize_threshold: ISAM2's relinearisation threshold (rad, m, m/s; see ``RELINEARIZE_THRESHOLD``).
+        config: ``fusion.config.FuseConfig``, the batch fusion's settings (default ``FuseConfig()``, as
+            ``configs/fuse.yaml``): ``online`` (keyframe interval, smoother, lag, ISAM2's relinearisation threshold,
+            the bias re-linearisation tolerance), the noise densities without a model (densities other than the
+            defaults are compared with the stream's own white noise once ``NOISE_CHECK_SAMPLES`` samples are in, and
+            warned about 3x under or 10x over it), ``graph`` (the prior on the first state, the GPS robust loss and
+            lever arm), and the bias states (``estimate_bias``; ``bias.factor`` must be ``"between"``).
     """
 
-    def __init__(
-        self,
-        model,
-        gravity,
-        initial_state,
-        keyframe_s: float = 1.0,
-        gyro_cov=None,
-        acc_cov=None,
-        smoother: str = "isam2",
-        lag_s: float = 10.0,
-        prior_rot_sigma_rad: float = 0.01,
-        prior_pos_sigma_m: float = 0.1,
-        prior_vel_sigma_m_s: float = 0.1,
-        gps_robust: str | None = None,
-        lever_arm_m=(0.0, 0.0, 0.0),
-        bias: BiasStates | None = None,
-        relinearise_tol: float = 1e-2,
-        relinearize_threshold: float = RELINEARIZE_THRESHOLD,
-    ):
+    def __init__(self, model, gravity, initial_state, config: FuseConfig | None = None):
+        config = config or FuseConfig()
+        if not isinstance(config, FuseConfig):
+            raise InputError(f"OnlineFusion: config must be a fusion.config.FuseConfig, got {type(config).__name__}")
+        online, graph, bias = config.online, config.graph, config.bias_states
         if model is not None and model.training:
             raise InputError("OnlineFusion: call model.eval() first (streaming needs eval mode)")
         if model is not None and getattr(model, "removes_gravity", False):
             raise InputError("OnlineFusion: the model was trained with remove_gravity (gravity in the IMU frame from "
                              "ground truth), which a live stream does not have")  # fmt: skip
-        if smoother not in SMOOTHERS:
-            raise InputError(f"OnlineFusion: unknown smoother {smoother!r}; known: {', '.join(SMOOTHERS)}")
-        if not keyframe_s > 0 or not lag_s >= 2 * keyframe_s:
-            raise InputError(f"OnlineFusion: need keyframe_s > 0 and lag_s >= 2 keyframe_s, got {keyframe_s}, {lag_s}")
-        self._model, self._keyframe_s, self._lag_s = model, float(keyframe_s), float(lag_s)
+        self._model, self._keyframe_s, self._lag_s = model, online.keyframe_s, online.lag_s
         self._gravity = _vector("gravity", gravity)
         self._first = first_state(initial_state, "OnlineFusion")
-        self._prior_sigmas = (float(prior_rot_sigma_rad), float(prior_pos_sigma_m), float(prior_vel_sigma_m_s))
-        given = gyro_cov is not None or acc_cov is not None
-        from learned_imu.network.model import DEFAULT_ACC_COV, DEFAULT_GYRO_COV  # replaced by FuseConfig below
-
-        gyro_cov = DEFAULT_GYRO_COV if gyro_cov is None else gyro_cov
-        acc_cov = DEFAULT_ACC_COV if acc_cov is None else acc_cov
-        densities = [real_array(gyro_cov, "OnlineFusion: gyro_cov"), real_array(acc_cov, "OnlineFusion: acc_cov")]
-        if any(d.shape not in ((), (3,)) for d in densities):
-            raise InputError(f"OnlineFusion: gyro_cov and acc_cov must be floats or (3,), got shapes "
-                             f"{densities[0].shape} and {densities[1].shape}")  # fmt: skip
-        self._density = np.hstack([np.broadcast_to(d, (3,)) for d in densities])
-        if not np.all(self._density > 0) or min(self._prior_sigmas) <= 0:
-            raise InputError("OnlineFusion: noise densities and prior sigmas must be > 0")
-        if gps_robust not in (None, *ROBUST_LOSSES):
-            raise InputError(
-                f"OnlineFusion: unknown gps_robust {gps_robust!r}; known: None, {', '.join(ROBUST_LOSSES)}"
-            )
-        self._gps_robust, self._lever_arm_m = gps_robust, _vector("lever_arm_m", lever_arm_m)
-        if bias is not None and (not isinstance(bias, BiasStates) or bias.factor != "between"):
-            raise InputError(f"OnlineFusion: bias must be a BiasStates with factor='between' (an ImuFactor and "
-                             f"the random walk between bias keys, as IMUKittiExampleGPS.py), got {bias!r}")  # fmt: skip
-        if not relinearise_tol > 0 or not relinearize_threshold > 0:
-            raise InputError(f"OnlineFusion: need relinearise_tol > 0 and relinearize_threshold > 0, got "
-                             f"{relinearise_tol}, {relinearize_threshold}")  # fmt: skip
+        self._prior_sigmas = (graph.prior_rot_sigma_rad, graph.prior_pos_sigma_m, graph.prior_vel_sigma_m_s)
+        self._density = np.repeat(np.square(config.noise_density), 3)  # [gyro x3, acc x3], sigma^2
+        self._gps_robust, self._lever_arm_m = graph.gps_robust, _vector("lever_arm_m", graph.lever_arm_m)
+        if bias is not None and bias.factor != "between":
+            raise InputError(f"OnlineFusion: bias.factor must be 'between' (an ImuFactor and the random walk between "
+                             f"bias keys, as IMUKittiExampleGPS.py), got {bias.factor!r}")  # fmt: skip
+        relinearise_tol, relinearize_threshold = online.bias_relinearize_tol, online.relinearize_threshold
+        smoother = online.smoother
+        given = not config.noise_is_default
         self._bias, self._relinearise_tol = bias, float(relinearise_tol)
         self._intervals: list[_Interval] = []  # bias states with ISAM2: every interval, for re-linearisation
         self._samples_seen = 0  # samples in the graph's intervals (the cumulative bias walk counts them)
@@ -187,7 +138,7 @@ class OnlineFusion:
         if bias is not None:  # tight IMU factors beside a loose bias prior: Cholesky finds the system indeterminate
             params.setFactorization("QR")  # (as with GTSAM's IMUKittiExampleGPS.py, BENCHMARKS.md)
         self._fixed_lag = smoother == "fixed_lag"
-        self._smoother = gtsam.IncrementalFixedLagSmoother(lag_s, params) if self._fixed_lag else gtsam.ISAM2(params)
+        self._smoother = gtsam.IncrementalFixedLagSmoother(self._lag_s, params) if self._fixed_lag else gtsam.ISAM2(params)
         self._stream = model.initial_state(1) if model is not None else None
         self._t = np.zeros(0)  # sample times from the last keyframe in the graph on (sample index self._base)
         self._samples = np.zeros((0, 12))  # corrected [gyro, acc, gyro_cov, acc_cov] from the same sample on
@@ -493,7 +444,7 @@ class OnlineFusion:
             sigma = float(np.sqrt(self._density[columns].max()))
             message = noise_mismatch(sensor, sigma, seen[:, columns], np.diff(seen_t))
             if message:
-                log.warning("OnlineFusion: %s_cov %.3g (sigma %.3g): %s", sensor, sigma**2, sigma, message)
+                log.warning("OnlineFusion: %s_noise_density %.3g: %s", sensor, sigma, message)
 
 
 def _vector(name: str, value) -> np.ndarray:

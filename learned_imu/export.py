@@ -24,14 +24,13 @@ import numpy as np
 import torch
 
 from airimu_core.errors import DataError, InputError
-from airimu_core.io import atomic_file
+from airimu_core.export import FORMAT_VERSION, Export, export_from_arrays, save_export
 from airimu_core.sequence import ImuSequence
 from learned_imu.geometry.preintegration import preintegrate
 from learned_imu.network.model import Correction
 
 log = logging.getLogger(__name__)
 
-FORMAT_VERSION = 1
 SAMPLES_PER_CALL = 100_000  # samples preintegrated per batched call (about 0.5 GB of float64 intermediates)
 
 
@@ -56,7 +55,22 @@ def export_preintegration(
     *,
     correction: Correction | None = None,
 ) -> Path:
-    """Preintegrate ``sequence`` between keyframes and write the export (see the module docstring).
+    """``preintegration_export`` written to ``path`` (atomically): the route to another process."""
+    export = preintegration_export(sequence, keyframe_index, gyro_cov, acc_cov, gyro, acc, correction=correction)
+    return save_export(export, path)
+
+
+def preintegration_export(
+    sequence: ImuSequence,
+    keyframe_index: np.ndarray,
+    gyro_cov=None,
+    acc_cov=None,
+    gyro: np.ndarray | None = None,
+    acc: np.ndarray | None = None,
+    *,
+    correction: Correction | None = None,
+) -> Export:
+    """Preintegrate ``sequence`` between keyframes into an ``Export`` (see the module docstring), validated.
 
     ``correction``: a model's output for the sequence (``learned_imu.network.inference.correct``): its corrected
     samples and per-sample densities are exported. Without it: ``gyro``/``acc`` (N, 3) replace the raw samples and
@@ -122,9 +136,7 @@ def export_preintegration(
     if sequence.gt is not None:
         gt = sequence.gt
         arrays.update(gt_rot=gt.rot, gt_pos=gt.pos, gt_vel=gt.vel, gt_valid=gt.valid)
-    with atomic_file(path, "wb") as f:
-        np.savez(f, **arrays)
-    return Path(path)
+    return export_from_arrays(arrays)
 
 
 def _integrate_intervals(out: dict, which: np.ndarray, length: int, keyframe_index: np.ndarray, samples) -> None:

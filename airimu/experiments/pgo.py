@@ -36,12 +36,13 @@ import numpy as np
 from airimu.experiments.pgo_config import GPS_SOURCES, PgoConfig, PgoOptions
 from airimu.viz.results import SequenceResult, marginal_track, record  # noqa: F401 (re-exported)
 from airimu_core.errors import ConfigError, InputError
+from airimu_core.export import Export, save_export
 from airimu_core.sequence import GpsFixes, ImuSequence, gap_indices
-from factors import load_export
 from fusion import consistency
-from fusion.graph import BiasStates, FusionSettings, Solution, build_graph, solve
+from fusion.config import BiasStates, FusionSettings
+from fusion.graph import Solution, build_graph, solve
 from learned_imu.config import load_config
-from learned_imu.export import export_preintegration, fixes_on_samples, keyframes_every, nearest_samples  # noqa: F401
+from learned_imu.export import fixes_on_samples, keyframes_every, nearest_samples, preintegration_export  # noqa: F401
 from learned_imu.network.checkpoint import model_from_checkpoint
 from learned_imu.network.inference import correct
 from learned_imu.network.model import Correction
@@ -114,8 +115,9 @@ def settings_of(options: PgoOptions) -> tuple[PgoSetting, ...]:
 
 def write_exports(
     sequence: ImuSequence, correction: Correction, folder: Path, options: PgoOptions, settings=SETTINGS
-) -> dict[str, Path]:
-    """One export per setting for ``sequence`` (the model's ``correction``, (N, 3) float64 fields)."""
+) -> dict[str, Export]:
+    """One export per setting for ``sequence`` (the model's ``correction``, (N, 3) float64 fields), in memory; each
+    also written to ``folder`` (``<sequence>__<setting>.npz``) for inspection or another process."""
     if options.keyframes == "fixes":
         if sequence.gps is None:
             raise ConfigError(f"options.keyframes: 'fixes' needs recorded GPS fixes; {sequence.name} has none")
@@ -133,8 +135,8 @@ def write_exports(
             covs = (correction.gyro_cov.numpy(), correction.acc_cov.numpy())
         if options.gap_noise_density is not None:
             covs = _with_gap_noise(sequence, covs, options.gap_noise_density)
-        path = folder / f"{sequence.name}__{setting.file_key}.npz"
-        out[setting.name] = export_preintegration(path, sequence, index, *covs, gyro, acc)
+        out[setting.name] = preintegration_export(sequence, index, *covs, gyro, acc)
+        save_export(out[setting.name], folder / f"{sequence.name}__{setting.file_key}.npz")
     return out
 
 
@@ -223,7 +225,7 @@ def run_sequence(
     recorded = options.gps_source == "recorded" or (options.gps_source == "auto" and sequence.gt is None)
     rows, examples = [], {}
     for setting in settings:
-        export = load_export(exports[setting.name])
+        export = exports[setting.name]
         for rate in options.gps_hz:
             ates, fits = [], []
             seeds = min(options.seeds, recorded_phases(sequence, rate)) if recorded else options.seeds

@@ -1,7 +1,8 @@
 """What fusing one sequence produced, and its views: ``SequenceResult`` (the sequence, the model's correction, the
 ablation rows if any, one solution per setting), ``record`` (a Rerun recording) and ``marginal_track`` (keyframe
 positions with their marginal covariances, computed once per solution and shared by ``record`` and
-``airimu.viz.figures.plot``). Used by the PGO ablation (``airimu.experiments.pgo``) and by ``airimu fuse`` (``airimu.fuse``) alike.
+``airimu.viz.figures.plot``). Used by the PGO ablation (``airimu.experiments.pgo``) and by ``airimu fuse``
+(``airimu.fuse``) alike.
 """
 
 from __future__ import annotations

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from airimu_core.errors import DataError
-from airimu_core.sequence import GpsFixes, ImuSequence
+from airimu_core.sequence import GPS_SIGMA_UNKNOWN_M, GpsFixes, ImuSequence
 from learned_imu.datasets._assemble import GtSamples, ReadChecks, build_sequence
 from learned_imu.datasets._checks import OnDuplicate, check_timestamps
 
@@ -39,7 +39,6 @@ ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
 POSE_TYPES = ("geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/PoseWithCovarianceStamped")
 NAVSATFIX_TYPE = "sensor_msgs/msg/NavSatFix"
 NO_FIX = -1  # sensor_msgs/NavSatStatus STATUS_NO_FIX
-DEFAULT_GPS_SIGMA_M = 1.0
 STAMPS = ("header", "bag")
 
 
@@ -54,7 +53,7 @@ def read_rosbag(
     name: str | None = None,
     checks: ReadChecks = ReadChecks(),
     gps_topic: str | None = None,
-    gps_sigma: float = DEFAULT_GPS_SIGMA_M,
+    gps_sigma: float = GPS_SIGMA_UNKNOWN_M,
 ) -> ImuSequence:
     """Read IMU (and optional ground truth and GPS) from a bag (see the module docstring for the conventions).
 

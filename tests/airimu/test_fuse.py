@@ -13,8 +13,8 @@ from gtsam.symbol_shorthand import B, X
 from typer.testing import CliRunner
 
 from airimu.cli import app
-from airimu.fuse import read_gps_csv
 from airimu_core.errors import DataError
+from learned_imu.datasets.gps import read_gps_csv
 
 
 @pytest.mark.slow
@@ -153,7 +153,8 @@ def test_fuse_with_bias_states_is_re_linearised_to_a_fixed_point():
 
     from airimu.fuse import fuse
     from factors import from_export, load_export
-    from fusion.graph import BiasStates, FusionSettings, build_graph, combined_params, solve
+    from fusion.config import BiasStates, FuseConfig, FusionSettings
+    from fusion.graph import build_graph, combined_params, solve
     from learned_imu.datasets.simulator import ImuErrorModel, simulate
     from learned_imu.export import export_preintegration, nearest_samples
 
@@ -161,7 +162,8 @@ def test_fuse_with_bias_states_is_re_linearised_to_a_fixed_point():
     seq = simulate("car", duration_s=30.0, error_model=errors, seed=7, gps_rate_hz=1.0, gps_sigma_m=0.1)
     states = BiasStates(1e-4, 1e-6, 1.0, 1.0, factor="combined")
     settings = FusionSettings(gps_robust="huber")
-    done = fuse(seq, settings=settings, bias=states, noise_density=(1e-4, 1e-3))
+    config = FuseConfig(1e-4, 1e-3, estimate_bias=True, bias=states, graph=settings)
+    done = fuse(seq, config=config)
     # the reference: GTSAM's CombinedImuFactors preintegrated from the samples at the result's biases, solved once more
     blind = dataclasses.replace(done.sequence, gt=None)
     index = np.unique(nearest_samples(done.sequence, done.sequence.gps.t)[0])

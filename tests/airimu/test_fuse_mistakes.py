@@ -11,10 +11,12 @@ import numpy as np
 import pytest
 
 from airimu.cli import main
-from airimu.fuse import check_gps_units, read_gps_csv
+from airimu.fuse import check_gps_units
 from airimu_core.errors import DataError, InputError
 from airimu_core.sequence import GpsFixes
 from factors.noise import noise_mismatch, white_noise_density
+from fusion.config import FuseConfig
+from learned_imu.datasets.gps import read_gps_csv
 
 DRIVE = "kitti_raw/2011_10_03_drive_0027.csv"
 REPAIR = ["--reader-option", "on_backward=drop", "--reader-option", "on_duplicate=drop", "--reader-option",
@@ -137,7 +139,7 @@ def test_gps_covering_part_of_the_drive_is_warned_about_and_still_written(drive,
     index = np.arange(0, 12000, 100)
     index = index[drive.gt.valid[index]]
     with caplog.at_level(logging.WARNING):
-        result = fuse(drive, GpsFixes(drive.t[index], drive.gt.pos[index], 0.3), keyframe_s=1.0)
+        result = fuse(drive, GpsFixes(drive.t[index], drive.gt.pos[index], 0.3), config=FuseConfig(keyframe_s=1.0))
         summary, written = write_outputs(result, tmp_path / "out")
     assert "the IMU runs 0 s before the first GPS fix and 3" in caplog.text and "dead reckoning" in caplog.text
     assert "marginal covariances not computed" in caplog.text
@@ -207,7 +209,7 @@ def test_noise_flags_with_a_checkpoint_are_refused(tmp_path, capsys, monkeypatch
     from learned_imu.datasets.simulator import simulate
 
     with pytest.raises(InputError, match="without a model only"):
-        fuse(simulate("car", duration_s=5.0), model=object(), noise_density=(0.004, 0.08))
+        fuse(simulate("car", duration_s=5.0), model=object(), config=FuseConfig(0.002, 0.04))
 
 
 def test_typer_parsing_errors_are_one_line(capsys, monkeypatch):

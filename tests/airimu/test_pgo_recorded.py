@@ -12,7 +12,6 @@ import torch
 from airimu.experiments.pgo import GTSAM_EXAMPLE, SETTINGS, PgoOptions, fixes_on_samples, run_sequence, write_exports
 from airimu_core.errors import ConfigError
 from airimu_core.sequence import GroundTruth, ImuSequence
-from factors import load_export
 from learned_imu.datasets.simulator import simulate
 from learned_imu.network.model import Correction
 
@@ -45,7 +44,7 @@ def test_keyframes_at_the_fixes_and_the_fix_in_a_gap_left_out(drive, tmp_path):
     kept = fixes_on_samples(drive)
     assert len(kept.gps.t) == len(drive.gps.t) - 1 and 21.0 not in np.round(kept.gps.t, 6)
     exports = write_exports(kept, raw_correction(kept), tmp_path, options, SETTINGS[:1])
-    keyframe_t = load_export(exports[SETTINGS[0].name]).keyframe_t
+    keyframe_t = exports[SETTINGS[0].name].keyframe_t
     np.testing.assert_allclose(keyframe_t, kept.gps.t, atol=1e-9)  # every fix on its own keyframe
 
 
@@ -55,7 +54,7 @@ def test_gap_noise_raises_only_the_interval_across_the_gap(drive, tmp_path):
     covs = {}
     for name, options in {"none": base, "gap": dataclasses.replace(base, gap_noise_density=(0.06, 0.7))}.items():
         exports = write_exports(kept, raw_correction(kept), tmp_path / name, options, SETTINGS[:1])
-        covs[name] = load_export(exports[SETTINGS[0].name]).delta_cov
+        covs[name] = exports[SETTINGS[0].name].delta_cov
     across = int(np.searchsorted(kept.gps.t, 20.2))  # the interval from the fix at 20 s to the one at 22 s
     ratio = np.diagonal(covs["gap"], axis1=1, axis2=2) / np.diagonal(covs["none"], axis1=1, axis2=2)
     assert np.all(ratio[across - 1] > 20)  # 1.5 s at 0.06 rad/s/sqrt(Hz), 0.7 m/s^2/sqrt(Hz) against 0.004, 0.08

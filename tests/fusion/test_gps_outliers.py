@@ -12,7 +12,8 @@ import pytest
 from airimu.experiments.pgo import ate_m, gps_for
 from airimu_core.sequence import GpsFixes
 from factors import load_export
-from fusion.graph import FusionSettings, build_graph, solve
+from fusion.config import FusionSettings
+from fusion.graph import build_graph, solve
 from learned_imu.datasets.simulator import ImuErrorModel, simulate
 from learned_imu.export import export_preintegration, keyframes_every
 

@@ -11,7 +11,8 @@ import pytest
 from airimu.experiments.pgo import ate_m, gps_for
 from airimu_core.sequence import GpsFixes
 from factors import load_export
-from fusion.graph import FusionSettings, build_graph, solve, with_marginals
+from fusion.config import FusionSettings
+from fusion.graph import build_graph, solve, with_marginals
 from learned_imu.datasets.simulator import ImuErrorModel, simulate
 from learned_imu.export import export_preintegration, keyframes_every
 
@@ -124,7 +125,8 @@ def test_bias_states_match_a_graph_of_gtsams_own_preintegration(tmp_path):
     import gtsam
 
     from factors import learned_pim
-    from fusion.graph import B, BiasStates, V, X
+    from fusion.config import BiasStates
+    from fusion.graph import B, V, X
 
     biased = ImuErrorModel(1e-4, 1e-3, 0.0, 0.0, 0.02, 0.1)  # turn-on biases: 0.02 rad/s, 0.1 m/s^2 (one sigma)
     seq = simulate("car", duration_s=30.0, error_model=biased, seed=4)
@@ -170,7 +172,7 @@ def test_bias_walk_per_interval_or_cumulative_as_gtsams_kitti_example(setup):
     of the PGO ablation's GTSAM row); a cumulative walk needs BetweenFactors."""
     from airimu.experiments.pgo import GTSAM_EXAMPLE
     from airimu_core.errors import ConfigError
-    from fusion.graph import BiasStates
+    from fusion.config import BiasStates
 
     seq, export = setup
     fuse, _ = gps_for(seq, 1.0, 0.5, seed=0)

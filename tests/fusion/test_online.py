@@ -3,6 +3,7 @@ after every update, and bad input is refused by name."""
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import subprocess
 import sys
@@ -13,9 +14,10 @@ import pytest
 import torch
 
 from airimu.experiments.pgo import ate_m, gps_for
-from airimu_core.errors import InputError
+from airimu_core.errors import ConfigError, InputError
 from airimu_core.sequence import GpsFixes
 from factors import load_export
+from fusion.config import FuseConfig, OnlineSettings
 from fusion.graph import Solution, build_graph, solve
 from fusion.online import OnlineFusion
 from learned_imu.datasets.simulator import simulate
@@ -25,7 +27,8 @@ from learned_imu.network.model import AirImuNet, correct_sequence
 from tests.helpers import REPO
 
 X, V = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V
-DENSITIES = (1e-3**2, 1e-2**2)  # rad^2/s, m^2/s^3: inflated over the consumer grade's white noise for its biases
+SIGMAS = (1e-3, 1e-2)  # rad/s/sqrt(Hz), m/s^2/sqrt(Hz): inflated over the consumer grade's white noise for its biases
+DENSITIES = (SIGMAS[0] ** 2, SIGMAS[1] ** 2)  # the same as sigma^2: rad^2/s, m^2/s^3
 KEYFRAME_S = 0.5
 BLOCK = 10  # IMU samples per add_imu call, as a driver delivers them
 
@@ -55,6 +58,12 @@ def small_model() -> AirImuNet:
     for decoder in (model.acc_decoder, model.gyro_decoder, model.acc_cov_decoder, model.gyro_cov_decoder):
         torch.nn.init.normal_(decoder[-1].weight, std=0.1)
     return model.eval()
+
+
+def config(smoother: str = "isam2", lag_s: float = 10.0) -> FuseConfig:
+    """The raw samples' densities, keyframes every KEYFRAME_S."""
+    online = OnlineSettings(keyframe_s=KEYFRAME_S, smoother=smoother, lag_s=lag_s)
+    return FuseConfig(gyro_noise_density=SIGMAS[0], acc_noise_density=SIGMAS[1], online=online)
 
 
 def first_state(seq):
@@ -103,7 +112,7 @@ def test_online_ends_on_the_batch_solution(sequence, with_model, tmp_path):
         gps = GpsFixes(seq.t[index], seq.gt.pos[index] + noise, np.full((len(index), 3), 0.1))
     model = small_model() if with_model else None
     batch, largest = batch_solution(seq, model, gps, tmp_path)
-    fusion = OnlineFusion(model, seq.gravity, first_state(seq), KEYFRAME_S, *DENSITIES)
+    fusion = OnlineFusion(model, seq.gravity, first_state(seq), config())
     before_flush = run_online(seq, fusion, gps)
     added = fusion.flush()
     online = fusion.trajectory()
@@ -136,7 +145,7 @@ def test_online_ends_on_the_batch_solution(sequence, with_model, tmp_path):
 
 def test_first_state_carries_the_prior(sequence):
     seq = sequence
-    fusion = OnlineFusion(None, seq.gravity, first_state(seq), KEYFRAME_S, *DENSITIES)
+    fusion = OnlineFusion(None, seq.gravity, first_state(seq), config())
     assert fusion.add_imu(seq.t[0], seq.gyro[0], seq.acc[0]) == 0
     state = fusion.current_state()
     assert state.t == seq.t[0]
@@ -151,7 +160,7 @@ def test_fixed_lag_bounds_the_window_and_stays_close(sequence, tmp_path):
     gps, truth = gps_for(seq, 1.0, 0.1, seed=0)
     batch, _ = batch_solution(seq, None, gps, tmp_path)
     lag_s = 3.0
-    fusion = OnlineFusion(None, seq.gravity, first_state(seq), KEYFRAME_S, *DENSITIES, "fixed_lag", lag_s)
+    fusion = OnlineFusion(None, seq.gravity, first_state(seq), config(smoother="fixed_lag", lag_s=lag_s))
     run_online(seq, fusion, gps, check_states=False)
     fusion.flush()
     online = fusion.trajectory()
@@ -167,7 +176,7 @@ def test_fixed_lag_bounds_the_window_and_stays_close(sequence, tmp_path):
 
 def test_bad_input_is_refused_by_name(sequence, caplog):
     seq = sequence
-    fusion = OnlineFusion(None, seq.gravity, first_state(seq), KEYFRAME_S, *DENSITIES)
+    fusion = OnlineFusion(None, seq.gravity, first_state(seq), config())
     with pytest.raises(InputError, match="precedes the first IMU sample"):
         fusion.add_gps(0.0, [0.0, 0.0, 0.0], 0.1)
     fusion.add_imu(seq.t[:5], seq.gyro[:5], seq.acc[:5])
@@ -204,8 +213,8 @@ def test_bad_input_is_refused_by_name(sequence, caplog):
         fusion.add_imu(seq.t[101], seq.gyro[101], seq.acc[101])
     with pytest.raises(InputError, match="eval"):
         OnlineFusion(small_model().train(), seq.gravity, first_state(seq))
-    with pytest.raises(InputError, match="unknown smoother"):
-        OnlineFusion(None, seq.gravity, first_state(seq), smoother="ekf")
+    with pytest.raises(ConfigError, match="online.smoother must be one of isam2, fixed_lag"):
+        OnlineFusion(None, seq.gravity, first_state(seq), config(smoother="ekf"))
     gravity_reader = small_model().eval()
     gravity_reader.removes_gravity = True  # as model_from_checkpoint sets it for train.remove_gravity
     with pytest.raises(InputError, match="trained with remove_gravity"):
@@ -218,19 +227,21 @@ def test_bad_input_is_refused_by_name(sequence, caplog):
 
 
 def test_given_densities_the_stream_contradicts_are_warned_about(sequence, caplog):
-    """A sigma given where sigma^2 is expected (0.004 as gyro_cov: 216x the stream's own white noise) is warned
-    about once 400 samples are in, naming both numbers; the defaults (a deliberate, conservative choice) are not."""
+    """A sigma 216x the stream's own white noise (0.0632, a sigma^2 of 0.004 mistaken for a sigma the other way) is
+    warned about once 400 samples are in, naming both numbers; the defaults (a deliberate, conservative choice) are
+    not."""
     seq = sequence
-    for gyro_cov, expect in ((0.004, True), (None, False)):
+    for gyro_sigma, expect in ((0.004**0.5, True), (None, False)):
         caplog.clear()
-        fusion = OnlineFusion(None, seq.gravity, first_state(seq), KEYFRAME_S, gyro_cov=gyro_cov)
+        chosen = FuseConfig() if gyro_sigma is None else FuseConfig(gyro_noise_density=gyro_sigma)
+        fusion = OnlineFusion(None, seq.gravity, first_state(seq), dataclasses.replace(chosen, online=OnlineSettings(KEYFRAME_S)))
         with caplog.at_level(logging.WARNING):
             for start in range(0, 600, BLOCK):
                 fusion.add_imu(seq.t[start : start + BLOCK], seq.gyro[start : start + BLOCK],
                                seq.acc[start : start + BLOCK])  # fmt: skip
-        assert ("gyro_cov 0.004 (sigma 0.0632)" in caplog.text and "above the white noise" in caplog.text) == expect
-    with pytest.raises(InputError, match=r"gyro_cov and acc_cov must be floats or \(3,\)"):
-        OnlineFusion(None, seq.gravity, first_state(seq), gyro_cov=[1e-6, 1e-6])
+        assert ("gyro_noise_density 0.0632" in caplog.text and "above the white noise" in caplog.text) == expect
+    with pytest.raises(ConfigError, match=r"gyro_noise_density: \[1e-06, 1e-06\] is not a gyro noise density sigma"):
+        OnlineFusion(None, seq.gravity, first_state(seq), FuseConfig(gyro_noise_density=[1e-6, 1e-6]))
 
 
 @pytest.mark.slow

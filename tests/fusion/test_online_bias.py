@@ -11,14 +11,15 @@ import numpy as np
 import pytest
 from gtsam.symbol_shorthand import B, V, X
 
-from airimu_core.errors import InputError
+from airimu_core.errors import ConfigError, InputError
 from factors import GpsFactor, gps_noise
-from fusion.graph import BiasStates
+from fusion.config import BiasStates, FuseConfig, FusionSettings, OnlineSettings
 from fusion.initial import priors_on_first
 from fusion.online import OnlineFusion
 from learned_imu.datasets.simulator import ImuErrorModel, simulate
 
-GYRO_COV, ACC_COV = 1e-4**2, 1e-3**2
+GYRO_SIGMA, ACC_SIGMA = 1e-4, 1e-3  # rad/s/sqrt(Hz), m/s^2/sqrt(Hz)
+GYRO_COV, ACC_COV = GYRO_SIGMA**2, ACC_SIGMA**2
 # turn-on biases drawn with 0.2 rad/s and 0.1 m/s^2 one-sigma: gyro biases of 0.1-0.3 rad/s, as in ImuFactorExample
 ERRORS = ImuErrorModel(1e-4, 1e-3, 0.0, 0.0, 0.2, 0.1)
 BIAS = BiasStates(acc_walk_sigma=1e-4, gyro_walk_sigma=1e-5, acc_prior_sigma=1.0, gyro_prior_sigma=1.0)
@@ -45,8 +46,10 @@ def fixes(seq, keyframes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def online(seq, keyframes, tol: float, smoother: str = "isam2", bias: BiasStates | None = BIAS) -> OnlineFusion:
     """Stream the samples up to the last keyframe in blocks, each fix once the IMU has passed it."""
     t_fix, pos_fix = fixes(seq, keyframes)
-    fusion = OnlineFusion(None, seq.gravity, first_state(seq, keyframes[0]), 1.0, GYRO_COV, ACC_COV, smoother,
-                          bias=bias, relinearise_tol=tol, relinearize_threshold=1e-9)  # fmt: skip
+    online = OnlineSettings(keyframe_s=1.0, smoother=smoother, relinearize_threshold=1e-9, bias_relinearize_tol=tol)
+    config = FuseConfig(GYRO_SIGMA, ACC_SIGMA, estimate_bias=bias is not None, bias=bias or BIAS, online=online,
+                        graph=FusionSettings(gps_robust=None))  # fmt: skip  (Gaussian GPS factors, as GTSAM's graph)
+    fusion = OnlineFusion(None, seq.gravity, first_state(seq, keyframes[0]), config)
     end, fix = keyframes[-1] + 1, 0
     for start in range(keyframes[0], end, BLOCK):
         block = slice(start, min(start + BLOCK, end))
@@ -150,7 +153,7 @@ def test_online_bias_on_a_real_flight_with_a_large_gyro_bias(shared_data):
 def test_bias_options_are_checked(drive):
     seq = drive
     combined = dataclasses.replace(BIAS, factor="combined")
-    with pytest.raises(InputError, match="factor='between'"):
-        OnlineFusion(None, seq.gravity, first_state(seq), bias=combined)
-    with pytest.raises(InputError, match="relinearise_tol"):
-        OnlineFusion(None, seq.gravity, first_state(seq), bias=BIAS, relinearise_tol=0.0)
+    with pytest.raises(InputError, match="factor must be 'between'"):
+        OnlineFusion(None, seq.gravity, first_state(seq), FuseConfig(estimate_bias=True, bias=combined))
+    with pytest.raises(ConfigError, match="bias_relinearize_tol"):
+        OnlineFusion(None, seq.gravity, first_state(seq), FuseConfig(online=OnlineSettings(bias_relinearize_tol=0.0)))

@@ -10,7 +10,10 @@ from airimu_core.config import from_dict, to_dict
 from airimu_core.errors import ConfigError
 from learned_imu.config import ExperimentConfig, load_config
 
-CONFIGS = sorted(p for p in (Path(__file__).parents[2] / "configs").glob("*.yaml") if not p.name.startswith("pgo_"))
+# experiment configs: every shipped YAML but the PGO ablation's and the fusion's (tests/airimu/test_fuse_config.py)
+CONFIGS = sorted(
+    p for p in (Path(__file__).parents[2] / "configs").glob("*.yaml") if not p.name.startswith(("pgo_", "fuse"))
+)
 PGO_CONFIGS = sorted((Path(__file__).parents[2] / "configs").glob("pgo_*.yaml"))
 MINIMAL = "name: t\ndata:\n  train: [{dataset: simulator}]\n  val: [{dataset: simulator}]\n"
 

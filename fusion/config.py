@@ -1,0 +1,205 @@
+"""The fusion's settings, every default written once: ``FuseConfig`` (``configs/fuse.yaml`` is its documented
+default, ``airimu fuse --config`` reads another, CLI flags override it) for the batch graph (``airimu.fuse``) and
+``OnlineFusion`` alike. Its sections: the IMU noise without a model, the GPS, the bias states, the graph and solver
+(``FusionSettings``: robust loss, lever arm, priors, Levenberg-Marquardt) and the online smoother.
+
+Noise conventions: ``*_noise_density`` is sigma (rad/s/sqrt(Hz), m/s^2/sqrt(Hz), as Kalibr writes it); GTSAM's
+setters and ``OnlineFusion``'s internals take sigma^2.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from airimu_core.config import check_noise_density, config_path, from_dict, read_yaml
+from airimu_core.errors import ConfigError
+from airimu_core.sequence import GPS_SIGMA_UNKNOWN_M
+
+
+@dataclass(frozen=True)
+class FusionSettings:
+    """The graph and its solver: GPS robust loss and lever arm, the prior on the first state, Levenberg-Marquardt
+    (``FuseConfig.graph``; ``configs/pgo_*.yaml``'s ``fusion`` block)."""
+
+    backend: Literal["gtsam", "custom"] = "gtsam"  # C++ ImuFactor, or factors.LearnedImuFactor
+    # robust loss of the GPS factors (factors.gps_noise); None: Gaussian, as GTSAM's examples and the paper's graph.
+    # Huber keeps a bad fix from bending the track (tests/fusion/test_gps_outliers.py) but, where the IMU's own
+    # errors make fixes look wrong, trusts the IMU over good fixes: on a simulated consumer drone (0.1-m fixes at
+    # 1 Hz) ATE 0.51 m against 0.22 Gaussian, and ISAM2 then ends 0.48 m from the batch solution (2 mm Gaussian)
+    gps_robust: Literal["huber", "cauchy"] | None = None
+    lever_arm_m: tuple[float, float, float] = (0.0, 0.0, 0.0)  # antenna in the IMU frame
+    prior_rot_sigma_rad: float = 0.01
+    prior_pos_sigma_m: float = 0.1
+    prior_vel_sigma_m_s: float = 0.1
+    max_iterations: int = 100
+    relative_error_tol: float = 1e-6
+    absolute_error_tol: float = 1e-6
+    init_window: int = 100  # keyframes per window of the sequential initialisation
+
+    def __post_init__(self):
+        for key in ("prior_rot_sigma_rad", "prior_pos_sigma_m", "prior_vel_sigma_m_s"):
+            value = getattr(self, key)
+            if not (np.isfinite(value) and value > 0):
+                raise ConfigError(f"fusion.{key} must be a positive sigma, got {value!r}")
+        for key in ("relative_error_tol", "absolute_error_tol"):
+            value = getattr(self, key)
+            if not (np.isfinite(value) and value >= 0):
+                raise ConfigError(f"fusion.{key} must be a number >= 0, got {value!r}")
+        for key in ("max_iterations", "init_window"):
+            if getattr(self, key) < 1:
+                raise ConfigError(f"fusion.{key} must be a whole number >= 1, got {getattr(self, key)!r}")
+        if self.backend not in ("gtsam", "custom"):
+            raise ConfigError(f"fusion.backend must be one of gtsam, custom, got {self.backend!r}")
+        if self.gps_robust not in (None, "huber", "cauchy"):
+            raise ConfigError(f"fusion.gps_robust must be null, huber or cauchy, got {self.gps_robust!r}")
+        if len(self.lever_arm_m) != 3 or not all(np.isfinite(self.lever_arm_m)):
+            raise ConfigError(f"fusion.lever_arm_m must be 3 finite numbers (m), got {list(self.lever_arm_m)!r}")
+
+
+BIAS_WALKS = ("per_interval", "cumulative")
+
+
+@dataclass(frozen=True)
+class BiasStates:
+    """A bias state per keyframe: ``B(k) - B(k+1)`` is zero-mean with sigma ``sqrt(count) * walk_sigma`` per axis and
+    ``B(0)`` has a zero-mean prior. Sigmas (standard deviations): acc in m/s^2, gyro in rad/s; ``walk_sigma`` is per
+    IMU sample.
+
+    ``walk``: what ``count`` is. ``"per_interval"`` (default): the samples between the two keyframes, which is a
+    per-sample random walk (its standard deviation over n samples is ``sqrt(n) * walk_sigma``). ``"cumulative"``:
+    the samples from the first keyframe to keyframe k+1, GTSAM's ``IMUKittiExampleGPS.py`` rule (its
+    ``included_imu_measurement_count`` is never reset), a walk that loosens with the time since the start (about 20x
+    at the end of its 470-s drive); use it to run that example's settings exactly
+    (``airimu.experiments.pgo.GTSAM_EXAMPLE``)."""
+
+    # GTSAM's IMUKittiExampleGPS.py walk sigmas and acc prior; a gyro prior of 0.01 rad/s (the example's 5e-5 cannot
+    # absorb a learned model's constant offset: BENCHMARKS.md, PGO on KITTI 0027)
+    acc_walk_sigma: float = 1.67e-4
+    gyro_walk_sigma: float = 2.91e-6
+    acc_prior_sigma: float = 0.1
+    gyro_prior_sigma: float = 0.01
+    # "between": gtsam.ImuFactor per interval and a BetweenFactorConstantBias of the random walk (the example's
+    # graph); "combined": gtsam.CombinedImuFactor, whose preintegration carries the same random walk (as a
+    # continuous-time density, walk_sigma^2 / dt) and the learned per-sample noise (factors.learned_combined_pim)
+    factor: str = "between"
+    walk: str = "per_interval"
+
+    def __post_init__(self):
+        if self.factor not in ("between", "combined"):
+            raise ConfigError(f"BiasStates.factor must be 'between' or 'combined', got {self.factor!r}")
+        if self.walk not in BIAS_WALKS:
+            raise ConfigError(f"BiasStates.walk must be one of {', '.join(BIAS_WALKS)}, got {self.walk!r}")
+        if self.factor == "combined" and self.walk != "per_interval":
+            raise ConfigError(
+                "BiasStates.walk: 'cumulative' needs factor 'between' (a CombinedImuFactor's preintegration carries "
+                "the walk over its own interval only)"
+            )
+        for name in ("acc_walk_sigma", "gyro_walk_sigma", "acc_prior_sigma", "gyro_prior_sigma"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ConfigError(f"BiasStates.{name} must be a positive number, got {value!r}")
+
+    def walk_sigmas(self, samples: np.ndarray) -> np.ndarray:
+        """(K, 6) sigmas [acc x3, gyro x3] of the walk over K intervals of ``samples`` (K,) IMU samples each."""
+        count = np.cumsum(samples) if self.walk == "cumulative" else np.asarray(samples)
+        return np.sqrt(count)[:, None] * np.array([self.acc_walk_sigma] * 3 + [self.gyro_walk_sigma] * 3)
+
+
+SMOOTHERS = ("isam2", "fixed_lag")
+
+
+@dataclass(frozen=True)
+class OnlineSettings:
+    """``OnlineFusion``'s smoother: a keyframe every ``keyframe_s`` (each costs CPU time: BENCHMARKS.md, "Online
+    fusion"); ``"isam2"`` keeps every keyframe, ``"fixed_lag"`` the last ``lag_s`` seconds; ISAM2's relinearisation
+    threshold (rad, m, m/s); with bias states, an interval is preintegrated again once its bias estimate moved more
+    than ``bias_relinearize_tol`` (rad/s, m/s^2) from the one it was preintegrated around."""
+
+    keyframe_s: float = 1.0
+    smoother: Literal["isam2", "fixed_lag"] = "isam2"
+    lag_s: float = 10.0
+    # ISAM2 relinearises a variable whose update exceeds this, checked from the root down only as far as cliques need
+    # it (partial check: a full check relinearised far-back stretches and made updates several times slower). GTSAM's
+    # default 0.1 left the online solution further from the batch LM one (BENCHMARKS.md, "Design measurements")
+    relinearize_threshold: float = 0.01
+    bias_relinearize_tol: float = 0.01
+
+    def __post_init__(self):
+        if self.smoother not in SMOOTHERS:
+            raise ConfigError(f"online.smoother must be one of {', '.join(SMOOTHERS)}, got {self.smoother!r}")
+        for key in ("keyframe_s", "relinearize_threshold", "bias_relinearize_tol"):
+            value = getattr(self, key)
+            if not (math.isfinite(value) and value > 0):
+                raise ConfigError(f"online.{key} must be a positive number, got {value!r}")
+        if not (math.isfinite(self.lag_s) and self.lag_s >= 2 * self.keyframe_s):
+            raise ConfigError(
+                f"online.lag_s must be at least 2 keyframes ({2 * self.keyframe_s:g} s), got {self.lag_s!r}"
+            )
+
+
+@dataclass(frozen=True)
+class FuseConfig:
+    """What ``airimu fuse`` (``airimu.fuse.fuse``) and ``OnlineFusion`` fuse with; ``configs/fuse.yaml`` holds these
+    defaults, commented.
+
+    - ``gyro_noise_density``, ``acc_noise_density``: sigma of the raw IMU's white noise, used without a model (a model
+      predicts its own); default VINS-Mono's EuRoC setting, a consumer MEMS (rad/s/sqrt(Hz), m/s^2/sqrt(Hz)).
+    - ``gps_sigma_m``: one-sigma GPS noise per axis (m) for fixes whose file gives none.
+    - ``keyframe_s``: a keyframe every this many seconds; null: one at every fused fix (batch only).
+    - ``estimate_bias``: a bias state per keyframe, with the sigmas and factor of ``bias``.
+    - ``graph``: robust loss, lever arm, priors and the solver; ``online``: the smoother of ``OnlineFusion``.
+    """
+
+    gyro_noise_density: float = 0.004
+    acc_noise_density: float = 0.08
+    gps_sigma_m: float = GPS_SIGMA_UNKNOWN_M
+    keyframe_s: float | None = None
+    estimate_bias: bool = False
+    bias: BiasStates = field(default_factory=BiasStates)
+    graph: FusionSettings = field(default_factory=FusionSettings)
+    online: OnlineSettings = field(default_factory=OnlineSettings)
+
+    def __post_init__(self):
+        check_noise_density("gyro", self.gyro_noise_density, "gyro_noise_density")
+        check_noise_density("acc", self.acc_noise_density, "acc_noise_density")
+        if not (math.isfinite(self.gps_sigma_m) and self.gps_sigma_m > 0):
+            raise ConfigError(f"gps_sigma_m must be a positive sigma (m), got {self.gps_sigma_m!r}")
+        if self.keyframe_s is not None and not (math.isfinite(self.keyframe_s) and self.keyframe_s > 0):
+            raise ConfigError(f"keyframe_s must be a positive interval (s) or null, got {self.keyframe_s!r}")
+
+    @property
+    def noise_density(self) -> tuple[float, float]:
+        """(gyro, acc) sigmas, rad/s/sqrt(Hz) and m/s^2/sqrt(Hz)."""
+        return self.gyro_noise_density, self.acc_noise_density
+
+    @property
+    def noise_is_default(self) -> bool:
+        """True while the noise densities are the defaults (only densities someone chose are judged against the
+        samples' own white noise: the defaults are a guess for an unknown IMU)."""
+        default = FuseConfig()
+        return self.noise_density == default.noise_density
+
+    @property
+    def bias_states(self) -> BiasStates | None:
+        """``bias`` when ``estimate_bias``, else None."""
+        return self.bias if self.estimate_bias else None
+
+
+def load_fuse_config(path: str | Path = "fuse.yaml") -> FuseConfig:
+    """Read a fusion config (YAML; a shipped config by name too: ``fuse.yaml`` is the documented default); every
+    key checked (``ConfigError`` naming the file and the key)."""
+    path = config_path(path)
+    data = read_yaml(path)
+    return from_dict(FuseConfig, {} if data is None else data, source=str(path))
+
+
+def with_overrides(config: FuseConfig, **changes) -> FuseConfig:
+    """``config`` with the given top-level fields replaced (``None`` values left as they are: a flag not given)."""
+    given = {k: v for k, v in changes.items() if v is not None}
+    return dataclasses.replace(config, **given) if given else config

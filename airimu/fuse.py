@@ -4,10 +4,10 @@ fuse``.
 Stage by stage (independent of the PGO ablation's code; the recording and figure of ``airimu.viz.results``): the model
 corrects the IMU and predicts its noise (or, without a model, the raw samples with fixed noise densities); an export
 holds the keyframe preintegrations, a keyframe at the IMU sample of every fix (fixes inside a gap of the IMU are not
-used) or every ``keyframe_s``; ``fusion.graph`` builds the graph (GPS factors, robust ones with ``graph.gps_robust``, optional bias
-states) and Levenberg-Marquardt solves it. The first state is found from the GPS track
-(``fusion.initial.aligned_first_state``), never from ground truth: a sequence's ground truth, if it has one, only
-scores the result.
+used) or every ``keyframe_s``; ``fusion.solve`` builds the graph (GPS factors, robust ones with
+``graph.gps_robust``, optional bias states) and Levenberg-Marquardt solves it. The first state is found from the
+GPS track (``fusion.initial.aligned_first_state``), never from ground truth: a sequence's ground truth, if it has
+one, only scores the result.
 
 GPS files are read by ``learned_imu.datasets.gps.read_gps_csv``.
 
@@ -153,8 +153,9 @@ def fuse(sequence: ImuSequence, gps: GpsFixes | None = None, model=None, config:
     where = sequence.source or sequence.name
     fixes = gps if gps is not None else sequence.gps
     if model is not None and not config.noise_is_default:
-        raise InputError("fuse: the config's noise densities apply without a model only (the model predicts the IMU's "
-                         "noise)")  # fmt: skip
+        raise InputError(
+            "fuse: the config's noise densities apply without a model only (the model predicts the IMU's noise)"
+        )
     if fixes is None or len(fixes.t) < 2:
         raise DataError(where, "gps", "fusing needs at least two GPS fixes")
     sequence = dataclasses.replace(sequence, gps=fixes)
@@ -163,9 +164,13 @@ def fuse(sequence: ImuSequence, gps: GpsFixes | None = None, model=None, config:
         raise DataError(where, "gps", "fewer than two fixes lie within the IMU's time span")
     before, after = fixes.t[inside][0] - sequence.t[0], sequence.t[-1] - fixes.t[inside][-1]
     if max(before, after) > UNCOVERED_WARNING_S:
-        log.warning("%s: the IMU runs %.0f s before the first GPS fix and %.0f s after the last: keyframes there are "
-                    "dead reckoning (a GPS file of a shorter stretch, or in another time base?)", where, before,
-                    after)  # fmt: skip
+        log.warning(
+            "%s: the IMU runs %.0f s before the first GPS fix and %.0f s after the last: keyframes there are "
+            "dead reckoning (a GPS file of a shorter stretch, or in another time base?)",
+            where,
+            before,
+            after,
+        )
     if config.keyframe_s is None:
         sequence = fixes_on_samples(sequence)
         index = np.unique(nearest_samples(sequence, sequence.gps.t)[0])
@@ -213,8 +218,10 @@ def check_gps_units(
     if as_read is None:
         return
     if gps_file_layout(path) == "lat/lon":
-        alternatives = {"lat/lon in radians": lambda: read_gps_csv(path, sigma_m, angle_unit="rad"),
-                        "lat and lon swapped": lambda: read_gps_csv(path, sigma_m, swap=True)}  # fmt: skip
+        alternatives = {
+            "lat/lon in radians": lambda: read_gps_csv(path, sigma_m, angle_unit="rad"),
+            "lat and lon swapped": lambda: read_gps_csv(path, sigma_m, swap=True),
+        }
         columns = "lat/lon"
     else:
         scaled = lambda f: lambda: GpsFixes(fixes.t, fixes.pos[0] + f * (fixes.pos - fixes.pos[0]), fixes.sigma)  # noqa: E731
@@ -230,11 +237,12 @@ def check_gps_units(
             continue
         if other is not None and other * UNIT_REFUSAL_RATIO < as_read:
             raise DataError(
-                path, columns,
+                path,
+                columns,
                 f"the IMU explains this GPS track far worse as read ({as_read:.3g} m/s of its velocity changes "
                 f"unexplained) than with {unit} ({other:.3g} m/s): {unit}? The {columns} columns are read as "
                 + ("degrees" if columns == "lat/lon" else "m"),
-            )  # fmt: skip
+            )
 
 
 def check_gps_clock(sequence: ImuSequence, source: object, fixes: GpsFixes) -> float | None:
@@ -253,8 +261,14 @@ def check_gps_clock(sequence: ImuSequence, source: object, fixes: GpsFixes) -> f
     log.warning(
         "%s: the GPS fixes look %.1f s %s against the IMU's clock: shifted by that the IMU explains their track's "
         "motion to %.3g m/s, as read to %.3g m/s. A clock offset between GPS and IMU? Pass --gps-time-offset %.1f "
-        "(subtracted from every fix time) if so.", source, abs(offset), side, at_offset, as_read, offset,
-    )  # fmt: skip
+        "(subtracted from every fix time) if so.",
+        source,
+        abs(offset),
+        side,
+        at_offset,
+        as_read,
+        offset,
+    )
     return offset
 
 
@@ -296,8 +310,16 @@ def write_outputs(result: Fused, folder: Path, reference: GpsFixes | None = None
             aligned = ate_m(gt.pos[sample[keep]], dense.pos[keep], align=True)  # the truth into the fused frame
             unaligned = ate_m(gt.pos[sample[keep]], dense.pos[keep], align=False)
     normalised = {kind: r.to_json_dict() for kind, r in result.residuals.items()}
-    summary = FusedSummary(result.sequence.name, len(trajectory.t), len(result.gps.t), int(inside.sum()), rmse,
-                           aligned, unaligned, normalised)  # fmt: skip
+    summary = FusedSummary(
+        result.sequence.name,
+        len(trajectory.t),
+        len(result.gps.t),
+        int(inside.sum()),
+        rmse,
+        aligned,
+        unaligned,
+        normalised,
+    )
     written.append(write_json_atomic(folder / "summary.json", dataclasses.asdict(summary)))
     return summary, written
 

@@ -46,8 +46,10 @@ def _unique_mapping(loader: UniqueKeyLoader, node: yaml.MappingNode, deep: bool 
         except TypeError:  # an unhashable key: the base constructor refuses it with its own message
             continue
         if repeated:
-            raise _RepeatedKey(f"key {key!r} given twice (lines {seen[key]} and {line}); YAML would keep the second "
-                               "without a word: remove one")  # fmt: skip
+            raise _RepeatedKey(
+                f"key {key!r} given twice (lines {seen[key]} and {line}); YAML would keep the second "
+                "without a word: remove one"
+            )
         seen[key] = line
     return loader.construct_mapping(node, deep=deep)
 

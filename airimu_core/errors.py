@@ -58,8 +58,9 @@ def real_array(value, name: str):
     try:
         array = np.asarray(value)  # numpy's own dtype: complex stays complex, text stays text
     except ValueError:
-        raise InputError(f"{name}: expected an array of real numbers, got a ragged nesting (rows of different "
-                         "lengths)") from None  # fmt: skip
+        raise InputError(
+            f"{name}: expected an array of real numbers, got a ragged nesting (rows of different lengths)"
+        ) from None
     if np.iscomplexobj(array):
         raise InputError(f"{name}: expected real numbers, got complex values")
     if not (np.issubdtype(array.dtype, np.number) or array.dtype == bool):

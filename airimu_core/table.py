@@ -38,9 +38,11 @@ def check_input_size(path: Path, field: str = "file") -> None:
     size = path.stat().st_size
     if size > limit:
         raise DataError(
-            path, field, f"{size / 2**30:.3g} GiB is beyond the {limit / 2**30:.3g} GiB any IMU log fits in (not a "
+            path,
+            field,
+            f"{size / 2**30:.3g} GiB is beyond the {limit / 2**30:.3g} GiB any IMU log fits in (not a "
             f"log, or a corrupt one?); set {MAX_INPUT_ENV} to a larger number of bytes to read it anyway",
-        )  # fmt: skip
+        )
 
 
 def _tokens(line: str, delimiter: str | None) -> list[str]:
@@ -224,8 +226,15 @@ def read_table(
     try:
         with warnings.catch_warnings():  # an empty file: "no data rows" below says it
             warnings.filterwarnings("ignore", "loadtxt: input contained no data", UserWarning)
-            data = np.loadtxt(path, delimiter=delimiter, comments=comments, skiprows=skip, ndmin=2, dtype=np.float64,
-                              encoding="utf-8-sig")
+            data = np.loadtxt(
+                path,
+                delimiter=delimiter,
+                comments=comments,
+                skiprows=skip,
+                ndmin=2,
+                dtype=np.float64,
+                encoding="utf-8-sig",
+            )
     except ValueError as err:
         bad = _first_bad_line(path, skip, delimiter, comments)
         if bad is not None:

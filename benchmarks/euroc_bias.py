@@ -34,8 +34,11 @@ from learned_imu.evaluation.evaluate import evaluate
 
 TRAIN = ("MH_01_easy", "MH_03_medium", "MH_05_difficult", "V1_02_medium", "V2_01_easy", "V2_03_difficult")
 TEST = ("MH_04_difficult", "V1_03_difficult", "V2_02_medium")
-ROOM = {"MH": ("MH_01_easy", "MH_03_medium", "MH_05_difficult"), "V1": ("V1_02_medium",),
-        "V2": ("V2_01_easy", "V2_03_difficult")}  # fmt: skip
+ROOM = {
+    "MH": ("MH_01_easy", "MH_03_medium", "MH_05_difficult"),
+    "V1": ("V1_02_medium",),
+    "V2": ("V2_01_easy", "V2_03_difficult"),
+}
 
 
 def roe(sequence, gyro) -> float:

@@ -4,8 +4,8 @@ at 1 Hz GPS with keyframes every second (7,200 states) solved by Levenberg-Marqu
     python benchmarks/fusion_scale.py [--hours 2] [--checkpoint runs/demo/best.pt] [--no-graph]
 
 Reports wall time and peak resident memory (``ru_maxrss``) of each stage. Without a checkpoint an untrained
-AirImuNet (same size as the paper's) does the inference: the cost does not depend on the weights. Targets
-(issue 6): inference + export under 60 s with peak memory under 2 GB; the graph solved in under 30 s.
+AirImuNet (same size as the paper's) does the inference: the cost does not depend on the weights. Targets:
+inference + export under 60 s with peak memory under 2 GB; the graph solved in under 30 s.
 """
 
 from __future__ import annotations
@@ -42,15 +42,19 @@ def main() -> None:
     model = model_from_checkpoint(args.checkpoint)[0] if args.checkpoint else AirImuNet().eval()
 
     clock = time.perf_counter()
-    out = correct_sequence(model, torch.as_tensor(seq.gyro, dtype=torch.float32),
-                           torch.as_tensor(seq.acc, dtype=torch.float32))  # fmt: skip
+    out = correct_sequence(
+        model, torch.as_tensor(seq.gyro, dtype=torch.float32), torch.as_tensor(seq.acc, dtype=torch.float32)
+    )
     inference = time.perf_counter() - clock
     noise = (out.gyro_cov.double().numpy(), out.acc_cov.double().numpy())
-    export = preintegration_export(seq, keyframes_every(seq, 1.0), *noise, out.gyro.double().numpy(),
-                                out.acc.double().numpy())  # fmt: skip
+    export = preintegration_export(
+        seq, keyframes_every(seq, 1.0), *noise, out.gyro.double().numpy(), out.acc.double().numpy()
+    )
     total = time.perf_counter() - clock
-    print(f"inference {inference:.1f} s + export {total - inference:.1f} s = {total:.1f} s "
-          f"(target < 60 s), peak memory {peak_mb():.0f} MB (target < 2048 MB)")  # fmt: skip
+    print(
+        f"inference {inference:.1f} s + export {total - inference:.1f} s = {total:.1f} s "
+        f"(target < 60 s), peak memory {peak_mb():.0f} MB (target < 2048 MB)"
+    )
 
     if args.no_graph:
         return
@@ -61,11 +65,11 @@ def main() -> None:
     built = time.perf_counter() - clock
     solution = solve(graph, values, export.keyframe_t, settings)
     total = time.perf_counter() - clock
-    print(f"graph: {len(export.keyframe_t):,} states, {graph.size():,} factors; build {built:.1f} s + solve "
-          f"{total - built:.1f} s = {total:.1f} s (target < 30 s), {solution.iterations} LM iterations, "
-          f"ATE {ate_m(solution, truth):.3f} m")  # fmt: skip
-
-
+    print(
+        f"graph: {len(export.keyframe_t):,} states, {graph.size():,} factors; build {built:.1f} s + solve "
+        f"{total - built:.1f} s = {total:.1f} s (target < 30 s), {solution.iterations} LM iterations, "
+        f"ATE {ate_m(solution, truth):.3f} m"
+    )
 
 
 if __name__ == "__main__":

@@ -99,8 +99,9 @@ class Variant:
 
 def _with(example, base, gyro=None, acc=None, gyro_cov=None, acc_cov=None):
     pick = lambda new, old: old if new is None else new  # noqa: E731
-    return example.Samples(pick(gyro, base.gyro), pick(acc, base.acc), pick(gyro_cov, base.gyro_cov),
-                           pick(acc_cov, base.acc_cov))  # fmt: skip
+    return example.Samples(
+        pick(gyro, base.gyro), pick(acc, base.acc), pick(gyro_cov, base.gyro_cov), pick(acc_cov, base.acc_cov)
+    )
 
 
 def variants(example) -> list[Variant]:
@@ -169,8 +170,13 @@ def write_gtsam_files(drive, folder: Path, metadata: Path) -> None:
     t = np.concatenate(t)
     samples = [np.column_stack([np.interp(t, drive.t, x[:, i]) for i in range(3)]) for x in (drive.acc, drive.gyro)]
     imu = np.column_stack([t, np.diff(t, prepend=t[0]), *samples])
-    np.savetxt(folder / "KittiEquivBiasedImu.txt", imu, header="Time dt accelX accelY accelZ omegaX omegaY omegaZ",
-               comments="", fmt="%.12f")  # fmt: skip
+    np.savetxt(
+        folder / "KittiEquivBiasedImu.txt",
+        imu,
+        header="Time dt accelX accelY accelZ omegaX omegaY omegaZ",
+        comments="",
+        fmt="%.12f",
+    )
     fixes = np.flatnonzero(np.diff(np.floor(drive.t - drive.t[0]), prepend=-1) > 0)  # the first sample of each second
     fixes = fixes[drive.gt.valid[fixes]]
     gps = np.column_stack([drive.t[fixes], drive.gt.pos[fixes]])
@@ -232,12 +238,18 @@ def choose_on_validation(example, model, val: list, inputs: Inputs, data: Path, 
         failed = {name: int(np.isnan(row).sum()) for name, row in zip(scored, table, strict=True)}
         fewest = min(failed[n] for n in CANDIDATES)
         chosen = min((n for n in CANDIDATES if failed[n] == fewest), key=means.get)
-        out[skip] = {"mean_ate_m": means, "failed_drives": failed, "drives_compared": int(solved.sum()),
-                     "per_drive_ate_m": {n: [float(v) for v in row] for n, row in zip(scored, table, strict=True)},
-                     "chosen": chosen}  # fmt: skip
+        out[skip] = {
+            "mean_ate_m": means,
+            "failed_drives": failed,
+            "drives_compared": int(solved.sum()),
+            "per_drive_ate_m": {n: [float(v) for v in row] for n, row in zip(scored, table, strict=True)},
+            "chosen": chosen,
+        }
         for name in scored:
-            print(f"validation drives, gps_skip {skip}: {name}: mean ATE {means[name]:.3f} m over {solved.sum()} "
-                  f"drives ({failed[name]} of {table.shape[1]} drives stopped indeterminate or diverged)")
+            print(
+                f"validation drives, gps_skip {skip}: {name}: mean ATE {means[name]:.3f} m over {solved.sum()} "
+                f"drives ({failed[name]} of {table.shape[1]} drives stopped indeterminate or diverged)"
+            )
         print(f"validation drives, gps_skip {skip}: chosen: {chosen}")
     return out
 
@@ -257,8 +269,10 @@ def model_inputs(example, model, config, val: list, data: Path, seq, raw) -> tup
         sums += np.concatenate([c.d_gyro.numpy().sum(0), c.d_acc.numpy().sum(0)])
         count += len(train)
     drive = read_sequence("kitti_raw", data / DRIVE, **REPAIR)
-    report = {"correction_mean_this_drive": np.concatenate([out.d_gyro.numpy().mean(0), out.d_acc.numpy().mean(0)]),
-              "correction_mean_training_drives": sums / count}  # fmt: skip
+    report = {
+        "correction_mean_this_drive": np.concatenate([out.d_gyro.numpy().mean(0), out.d_acc.numpy().mean(0)]),
+        "correction_mean_training_drives": sums / count,
+    }
     scales = {}
     for skip, length in HORIZONS.items():
         windows = dataclasses.replace(config, train=dataclasses.replace(config.train, window=length, every=length))
@@ -286,8 +300,10 @@ def main() -> None:
 
     def add(name: str, skip: int, run) -> None:
         rows.append({"row": name, "gps_skip": skip, "rmse_to_gps_m": run.rmse_to_gps_m, "ate_m": truth.ate_m(run)})
-        print(f"{name} [gps_skip {skip}]: RMSE {rows[-1]['rmse_to_gps_m']:.3f} m, ATE {rows[-1]['ate_m']:.3f} m",
-              flush=True)  # fmt: skip
+        print(
+            f"{name} [gps_skip {skip}]: RMSE {rows[-1]['rmse_to_gps_m']:.3f} m, ATE {rows[-1]['ate_m']:.3f} m",
+            flush=True,
+        )
 
     for skip, factorization in ((10, "CHOLESKY"), (1, "QR")):  # as shipped: the two that stop
         try:
@@ -326,9 +342,11 @@ def main() -> None:
     for skip, value in choice.items():
         chosen = next(r for r in rows if r["gps_skip"] == skip and r["row"] == value["chosen"])
         script = next(r for r in rows if r["gps_skip"] == skip and r["row"].startswith("GTSAM's"))
-        print(f"gps_skip {skip}: the row the validation drives chose, {chosen['row']}: RMSE "
-              f"{chosen['rmse_to_gps_m']:.3f} / ATE {chosen['ate_m']:.3f} m against GTSAM's script "
-              f"{script['rmse_to_gps_m']:.3f} / {script['ate_m']:.3f} m")
+        print(
+            f"gps_skip {skip}: the row the validation drives chose, {chosen['row']}: RMSE "
+            f"{chosen['rmse_to_gps_m']:.3f} / ATE {chosen['ate_m']:.3f} m against GTSAM's script "
+            f"{script['rmse_to_gps_m']:.3f} / {script['ate_m']:.3f} m"
+        )
 
 
 if __name__ == "__main__":

@@ -27,8 +27,10 @@ def main() -> None:
         for lag in (0, 2, 4, 5):
             gyro = np.concatenate([seq.gyro[lag:], np.repeat(seq.gyro[-1:], lag, 0)]) if lag else seq.gyro
             out.append(evaluate(seq, 1.0, "s", gyro, seq.acc).roe_deg)
-        print(f"{seq.name}: ROE 1 s (deg) with the gyro advanced by 0 / 2 / 4 / 5 samples: "
-              + " / ".join(f"{x:.4f}" for x in out))
+        print(
+            f"{seq.name}: ROE 1 s (deg) with the gyro advanced by 0 / 2 / 4 / 5 samples: "
+            + " / ".join(f"{x:.4f}" for x in out)
+        )
 
 
 if __name__ == "__main__":

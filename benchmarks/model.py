@@ -104,5 +104,6 @@ def main() -> None:
             f"{theirs / ours:.2f}x ours"
         )
 
+
 if __name__ == "__main__":
     main()

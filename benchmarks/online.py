@@ -82,8 +82,10 @@ def main() -> None:
         else AirImuNet(init_gyro_cov=1e-6, init_acc_cov=1e-4).eval()
     )
     data_s = seq.t[-1] - seq.t[0]
-    print(f"{args.minutes:g} min at 200 Hz ({len(seq):,} samples, blocks of {args.block}), {len(gps.t)} GPS fixes, "
-          f"{args.smoother}, torch threads {torch.get_num_threads()}")  # fmt: skip
+    print(
+        f"{args.minutes:g} min at 200 Hz ({len(seq):,} samples, blocks of {args.block}), {len(gps.t)} GPS fixes, "
+        f"{args.smoother}, torch threads {torch.get_num_threads()}"
+    )
     for keyframe_s in args.keyframe:
         times, trajectory = run(seq, gps, model, keyframe_s, args.block, args.smoother, args.lag)
         total = sum(sum(v) for v in times.values())
@@ -94,10 +96,14 @@ def main() -> None:
             print(f"  {kind:<24}{len(ms):>8}{np.median(ms):>12.3f}{np.percentile(ms, 99):>10.3f}{ms.max():>10.1f}")
         updates = np.array(times["imu + keyframe update"]) * 1e3
         tenth = max(1, len(updates) // 10)
-        print(f"  keyframe update median, first vs last tenth of the run: {np.median(updates[:tenth]):.2f} ms, "
-              f"{np.median(updates[-tenth:]):.2f} ms")  # fmt: skip
-        print(f"  processing {total:.1f} s for {data_s:.0f} s of data: real-time factor {total / data_s:.4f}, "
-              f"margin {data_s / total:.1f}x (target >= 10x)")  # fmt: skip
+        print(
+            f"  keyframe update median, first vs last tenth of the run: {np.median(updates[:tenth]):.2f} ms, "
+            f"{np.median(updates[-tenth:]):.2f} ms"
+        )
+        print(
+            f"  processing {total:.1f} s for {data_s:.0f} s of data: real-time factor {total / data_s:.4f}, "
+            f"margin {data_s / total:.1f}x (target >= 10x)"
+        )
         print(f"  ATE {ate_m(Solution(trajectory, None, None, 0, 0.0), truth):.3f} m")
 
 

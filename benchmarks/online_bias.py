@@ -6,8 +6,8 @@
 samples with 1-s keyframes, each fix once the IMU has passed it: first without bias states (the default noise 0.004
 / 0.08), then with GTSAM's example settings (its noise densities, its bias prior and cumulative walk:
 ``airimu.experiments.pgo.GTSAM_EXAMPLE``) at each ``bias_relinearize_tol``. Prints the wall time, ms per keyframe,
-the intervals preintegrated again and the RMSE of the keyframes against every fix (the first state: identity attitude at the first
-fix, as the drive has no ground truth here).
+the intervals preintegrated again and the RMSE of the keyframes against every fix (the first state: identity
+attitude at the first fix, as the drive has no ground truth here).
 """
 
 from __future__ import annotations
@@ -58,16 +58,23 @@ def main() -> None:
     gyro, acc = GTSAM_EXAMPLE.noise_density
     runs = [("no bias states", FuseConfig())]
     runs += [
-        (f"bias states, bias_relinearize_tol {tol:g}",
-         FuseConfig(gyro, acc, estimate_bias=True, bias=GTSAM_EXAMPLE.bias, online=OnlineSettings(bias_relinearize_tol=tol)))
+        (
+            f"bias states, bias_relinearize_tol {tol:g}",
+            FuseConfig(
+                gyro, acc, estimate_bias=True, bias=GTSAM_EXAMPLE.bias, online=OnlineSettings(bias_relinearize_tol=tol)
+            ),
+        )
         for tol in args.tol
-    ]  # fmt: skip
+    ]
     for name, config in runs:
         fusion = OnlineFusion(None, seq.gravity, first, config)
         seconds = stream(seq, fusion)
         rmse = rmse_to_gps(seq, fusion)
-        print(f"{name}: {seconds:.2f} s, {1e3 * seconds / fusion.keyframes:.1f} ms a keyframe ({fusion.keyframes}), "
-              f"{fusion.reintegrated} intervals preintegrated again, RMSE against the GPS {rmse:.3f} m", flush=True)
+        print(
+            f"{name}: {seconds:.2f} s, {1e3 * seconds / fusion.keyframes:.1f} ms a keyframe ({fusion.keyframes}), "
+            f"{fusion.reintegrated} intervals preintegrated again, RMSE against the GPS {rmse:.3f} m",
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

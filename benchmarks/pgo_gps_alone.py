@@ -42,8 +42,9 @@ def main() -> None:
                 fuse, truth = gps_for(sequence, rate, options.gps_sigma_m, seed, options.gps_source)
                 inside = (truth.t >= fuse.t[0]) & (truth.t <= fuse.t[-1])
                 t = truth.t[inside]
-                line.append(rmse(np.column_stack([np.interp(t, fuse.t, fuse.pos[:, i]) for i in range(3)]),
-                                 truth.pos[inside]))  # fmt: skip
+                line.append(
+                    rmse(np.column_stack([np.interp(t, fuse.t, fuse.pos[:, i]) for i in range(3)]), truth.pos[inside])
+                )
                 spline.append(rmse(CubicSpline(fuse.t, fuse.pos)(t), truth.pos[inside]))
             print(
                 f"{sequence.name} GPS {rate:g} Hz ({seeds} draws): straight line {np.mean(line):.3f} +- "

@@ -50,8 +50,11 @@ def run(seconds: float = 12.0, checkpoint: str | None = None, relinearise: int =
     estimate, bias = initial, gtsam.imuBias.ConstantBias()
     for _ in range(relinearise):  # preintegrate around the current bias estimate, solve, repeat
         graph = gtsam.NonlinearFactorGraph()
-        graph.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(gtsam.Rot3(seq.gt.rot[0]), seq.gt.pos[0]),
-                                         gtsam.noiseModel.Isotropic.Sigma(6, 0.1)))  # fmt: skip
+        graph.add(
+            gtsam.PriorFactorPose3(
+                X(0), gtsam.Pose3(gtsam.Rot3(seq.gt.rot[0]), seq.gt.pos[0]), gtsam.noiseModel.Isotropic.Sigma(6, 0.1)
+            )
+        )
         graph.add(gtsam.PriorFactorVector(V(0), seq.gt.vel[0], gtsam.noiseModel.Isotropic.Sigma(3, 0.1)))
         for k in range(len(starts) - 1):
             take = slice(starts[k], starts[k + 1])

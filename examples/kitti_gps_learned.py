@@ -155,8 +155,12 @@ def walk_counts(take: list[slice], rule: BiasWalk) -> np.ndarray:
 
 def raw_samples(seq, calibration: Calibration) -> Samples:
     """The raw samples with the metadata's constant noise (the script's own)."""
-    return Samples(seq.gyro, seq.acc, np.full_like(seq.gyro, calibration.gyro_sigma**2),
-                   np.full_like(seq.acc, calibration.acc_sigma**2))  # fmt: skip
+    return Samples(
+        seq.gyro,
+        seq.acc,
+        np.full_like(seq.gyro, calibration.gyro_sigma**2),
+        np.full_like(seq.acc, calibration.acc_sigma**2),
+    )
 
 
 def model_samples(seq, checkpoint: str | Path) -> Samples:
@@ -213,8 +217,15 @@ def run(
     fused = [False]
     for i, cut, n in zip(range(first + 1, end), take, walk_n, strict=True):
         # the interval preintegrated around the latest bias estimate, and its IMU factor
-        pim = learned_pim(samples.gyro[cut], samples.acc[cut], dt[cut], samples.gyro_cov[cut], samples.acc_cov[cut],
-                          bias=bias, params=params)  # fmt: skip
+        pim = learned_pim(
+            samples.gyro[cut],
+            samples.acc[cut],
+            dt[cut],
+            samples.gyro_cov[cut],
+            samples.acc_cov[cut],
+            bias=bias,
+            params=params,
+        )
         graph.push_back(gtsam.ImuFactor(X(i - 1), V(i - 1), X(i), V(i), B(i - 1), pim))
         # the bias random walk
         walk = gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(n) * walk_sigma)
@@ -258,16 +269,19 @@ SCRIPT_GPS_SKIP = "gps_skip = 10"
 SCRIPT_WAIT = "if i > (first_gps_pose + 2 * gps_skip):"
 
 
-def gtsam_script(data: str | Path | None = None, gps_skip: int = 10, factorization: str = "QR",
-                 wait: int | None = None) -> KittiRun:  # fmt: skip
+def gtsam_script(
+    data: str | Path | None = None, gps_skip: int = 10, factorization: str = "QR", wait: int | None = None
+) -> KittiRun:
     """GTSAM's installed ``IMUKittiExampleGPS.py`` itself: its source executed with ``factorization`` in place of its
     CHOLESKY, ``gps_skip`` in place of its 10 (and, given ``wait``, that many keyframes before its first update
     instead of ``2 * gps_skip``), its ``main()`` run on the files in ``data`` (None: gtsam's copies) with its output
     silenced; the final estimate as ``KittiRun``. Raises if the script no longer holds the lines this edits."""
     origin = importlib.util.find_spec(SCRIPT).origin
     source = Path(origin).read_text(encoding="utf-8")
-    edits = [(SCRIPT_FACTORIZATION, f'isam_params.setFactorization("{factorization}")'),
-             (SCRIPT_GPS_SKIP, f"gps_skip = {int(gps_skip)}")]  # fmt: skip
+    edits = [
+        (SCRIPT_FACTORIZATION, f'isam_params.setFactorization("{factorization}")'),
+        (SCRIPT_GPS_SKIP, f"gps_skip = {int(gps_skip)}"),
+    ]
     if wait is not None:
         edits.append((SCRIPT_WAIT, f"if i > (first_gps_pose + {int(wait)}):"))
     for old, new in edits:
@@ -277,12 +291,14 @@ def gtsam_script(data: str | Path | None = None, gps_skip: int = 10, factorizati
     script = {"__name__": "IMUKittiExampleGPS", "__file__": origin}
     exec(compile(source, origin, "exec"), script)  # noqa: S102 -- gtsam's own example, as installed
     root = Path(data) if data is not None else Path(gtsam.findExampleDataFile(IMU_FILE)).parent
-    script["loadKittiData"] = functools.partial(script["loadKittiData"], str(root / IMU_FILE), str(root / GPS_FILE),
-                                                str(root / METADATA_FILE))  # fmt: skip
+    script["loadKittiData"] = functools.partial(
+        script["loadKittiData"], str(root / IMU_FILE), str(root / GPS_FILE), str(root / METADATA_FILE)
+    )
     script["parse_args"] = lambda: argparse.Namespace(output_filename=os.devnull)
     kept = {}
-    script["save_results"] = lambda isam, _, first, gps: kept.update(estimate=isam.calculateEstimate(), first=first,
-                                                                     gps=gps)  # fmt: skip
+    script["save_results"] = lambda isam, _, first, gps: kept.update(
+        estimate=isam.calculateEstimate(), first=first, gps=gps
+    )
     sys.stdout.flush()
     stdout = os.dup(1)  # the script prints every factor and pose, through Python and through GTSAM's C++ print
     try:

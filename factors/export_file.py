@@ -59,8 +59,10 @@ def from_export(
         raise ValueError("backend='gtsam' builds gtsam.ImuFactor, which always has a bias key: pass bias_key")
     export = export if isinstance(export, Export) else load_export(export)
     if backend == "custom" and (params is not None or bias is not None or factor != "imu"):
-        raise ValueError("backend='custom' (LearnedImuFactor) uses the export's deltas as they are: params=, bias= "
-                         "and factor='combined' need backend='gtsam'")  # fmt: skip
+        raise ValueError(
+            "backend='custom' (LearnedImuFactor) uses the export's deltas as they are: params=, bias= "
+            "and factor='combined' need backend='gtsam'"
+        )
     if factor == "combined" and not isinstance(params, gtsam.PreintegrationCombinedParams):
         raise ValueError("factor='combined' needs params=gtsam.PreintegrationCombinedParams(...): the bias random walk")
     if params is not None:
@@ -71,21 +73,33 @@ def from_export(
     for k in range(len(export.delta_dt)):
         if backend == "gtsam":
             pim = pim_from_deltas(
-                export.delta_rot[k], export.delta_pos[k], export.delta_vel[k], export.delta_dt[k],
-                export.delta_cov[k], export.bias_jacobian[k], export.gravity,
-            )  # fmt: skip
+                export.delta_rot[k],
+                export.delta_pos[k],
+                export.delta_vel[k],
+                export.delta_dt[k],
+                export.delta_cov[k],
+                export.bias_jacobian[k],
+                export.gravity,
+            )
             factors.append(gtsam.ImuFactor(pose_key(k), vel_key(k), pose_key(k + 1), vel_key(k + 1), bias_key(k), pim))
             continue
         try:
             factors.append(
                 LearnedImuFactor(
-                    pose_key(k), vel_key(k), pose_key(k + 1), vel_key(k + 1),
-                    export.delta_rot[k], export.delta_pos[k], export.delta_vel[k], export.delta_dt[k],
-                    export.delta_cov[k], gravity=export.gravity,
+                    pose_key(k),
+                    vel_key(k),
+                    pose_key(k + 1),
+                    vel_key(k + 1),
+                    export.delta_rot[k],
+                    export.delta_pos[k],
+                    export.delta_vel[k],
+                    export.delta_dt[k],
+                    export.delta_cov[k],
+                    gravity=export.gravity,
                     bias=None if bias_key is None else bias_key(k),
                     bias_jacobian=None if bias_key is None else export.bias_jacobian[k],
                 )
-            )  # fmt: skip
+            )
         except ValueError as err:
             raise ExportError(f"{export.path}: interval {k}: {err}") from None
     return factors, export.keyframe_t

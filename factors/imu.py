@@ -23,9 +23,9 @@ what the learned correction provides.
 Equal to ``gtsam.ImuFactor`` to round-off at zero bias (error, Jacobians, solution). At a non-zero bias both correct
 to first order, but in different charts: this factor on the manifold (Forster's ``dR Exp(J_rg b_g)``, with
 ``learned_imu``'s Jacobians), GTSAM 4.3's tangent preintegration by adding ``J b`` to its tangent vector before the
-retraction; they differ at second order in the bias (issue 26 measured factor errors 54.4312 against 54.4533 and
-solutions 2.06 cm apart with a 0.1-0.3 rad/s gyro bias). Where the bias is that large, re-linearise
-(``factors.solve_relinearised``), which leaves neither first-order correction in the result.
+retraction; they differ at second order in the bias (factor errors 54.4312 against 54.4533 and solutions 2.06 cm
+apart with a 0.1-0.3 rad/s gyro bias: tests/factors/test_bias_relinearisation.py). Where the bias is that large,
+re-linearise (``factors.solve_relinearised``), which leaves neither first-order correction in the result.
 """
 
 from __future__ import annotations

@@ -83,8 +83,15 @@ def solve_relinearised(
     solved = solve_or_explain(gtsam.LevenbergMarquardtOptimizer(current, values, lm_params).optimize)
     while solves < max_rounds:
         before = solved
-        factors, _ = from_export(export, pose_key, vel_key, bias_key, factor=factor, params=params,
-                                 bias=lambda k, at=before: at.atConstantBias(bias_key(k)))  # fmt: skip
+        factors, _ = from_export(
+            export,
+            pose_key,
+            vel_key,
+            bias_key,
+            factor=factor,
+            params=params,
+            bias=lambda k, at=before: at.atConstantBias(bias_key(k)),
+        )
         current = gtsam.NonlinearFactorGraph()
         for item in [others.at(i) for i in range(others.size())] + factors:
             current.add(item)

@@ -36,14 +36,18 @@ LOW = 0.01  # below this: the sigmas are far larger than the residuals
 LOW_MIN_DOF = 5.0  # P(chi-square(5) < 0.05) ~ 1e-5; with 1.6 degrees of freedom (six fixes) it is ~2 %
 
 CAUSES = {
-    "gps": {"high": "GPS positions in another unit or frame, a clock offset between GPS and IMU, GPS sigmas too "
-                    "small, or IMU noise given as a variance (an over-confident IMU leaves the misfit to the GPS)",
-            "low": "GPS sigmas far too large"},
-    "imu": {"high": "IMU noise given as a variance (sigma^2) where a sigma is expected, IMU samples in another unit, "
-                    "a time offset, or a sensor bias the graph does not model (raw samples without bias states)",
-            "low": "IMU noise given as sigma where sigma^2 is expected, or far too pessimistic"},
+    "gps": {
+        "high": "GPS positions in another unit or frame, a clock offset between GPS and IMU, GPS sigmas too "
+        "small, or IMU noise given as a variance (an over-confident IMU leaves the misfit to the GPS)",
+        "low": "GPS sigmas far too large",
+    },
+    "imu": {
+        "high": "IMU noise given as a variance (sigma^2) where a sigma is expected, IMU samples in another unit, "
+        "a time offset, or a sensor bias the graph does not model (raw samples without bias states)",
+        "low": "IMU noise given as sigma where sigma^2 is expected, or far too pessimistic",
+    },
     "bias": {"high": "a bias random walk too small for the sensor", "low": "a bias random walk far too large"},
-}  # fmt: skip
+}
 
 
 @dataclass(frozen=True)
@@ -64,8 +68,14 @@ class Residual:
         return self.chi2 / self.dof if self.dof > 0 else float("nan")
 
     def to_json_dict(self) -> dict:
-        return {"factors": self.factors, "dim": self.dim, "dof": self.dof, "dof_exact": self.exact, "chi2": self.chi2,
-                "chi2_per_dof": self.per_dof}  # fmt: skip
+        return {
+            "factors": self.factors,
+            "dim": self.dim,
+            "dof": self.dof,
+            "dof_exact": self.exact,
+            "chi2": self.chi2,
+            "chi2_per_dof": self.per_dof,
+        }
 
 
 def kind_of(factor) -> str:

@@ -267,9 +267,11 @@ def trajectory_of(values: gtsam.Values, times: np.ndarray, marginals: gtsam.Marg
     pos_cov = None
     if marginals is not None:  # Pose3 tangent is [rotation, translation]; translation in the body frame
         pos_cov = np.array(
-            [p.rotation().matrix() @ marginals.marginalCovariance(X(k))[3:, 3:] @ p.rotation().matrix().T
-             for k, p in enumerate(poses)]
-        )  # fmt: skip
+            [
+                p.rotation().matrix() @ marginals.marginalCovariance(X(k))[3:, 3:] @ p.rotation().matrix().T
+                for k, p in enumerate(poses)
+            ]
+        )
     return Trajectory(
         t=np.asarray(times, dtype=float),
         rot=np.array([p.rotation().matrix() for p in poses]),
@@ -288,9 +290,11 @@ def with_marginals(solution: Solution) -> Trajectory:
         return trajectory_of(solution.values, solution.trajectory.t, marginals)
     except RuntimeError as error:
         near = re.search(r"Symbol: (\w+)", str(error))
-        log.warning("marginal covariances not computed (NaN in marginals.npz, no ellipsoids): GTSAM finds the graph "
-                    "nearly indeterminate%s; keyframes far from every GPS fix do that", f" near {near.group(1)}"
-                    if near else "")  # fmt: skip
+        log.warning(
+            "marginal covariances not computed (NaN in marginals.npz, no ellipsoids): GTSAM finds the graph "
+            "nearly indeterminate%s; keyframes far from every GPS fix do that",
+            f" near {near.group(1)}" if near else "",
+        )
     trajectory = solution.trajectory
     nan = np.full((len(trajectory.t), 3, 3), np.nan)
     return Trajectory(trajectory.t, trajectory.rot, trajectory.pos, trajectory.vel, nan)

@@ -113,8 +113,10 @@ class OnlineFusion:
         if model is not None and model.training:
             raise InputError("OnlineFusion: call model.eval() first (streaming needs eval mode)")
         if model is not None and getattr(model, "removes_gravity", False):
-            raise InputError("OnlineFusion: the model was trained with remove_gravity (gravity in the IMU frame from "
-                             "ground truth), which a live stream does not have")  # fmt: skip
+            raise InputError(
+                "OnlineFusion: the model was trained with remove_gravity (gravity in the IMU frame from "
+                "ground truth), which a live stream does not have"
+            )
         self._model, self._keyframe_s, self._lag_s = model, online.keyframe_s, online.lag_s
         self._gravity = _vector("gravity", gravity)
         self._first = first_state(initial_state, "OnlineFusion")
@@ -122,8 +124,10 @@ class OnlineFusion:
         self._density = np.repeat(np.square(config.noise_density), 3)  # [gyro x3, acc x3], sigma^2
         self._gps_robust, self._lever_arm_m = graph.gps_robust, _vector("lever_arm_m", graph.lever_arm_m)
         if bias is not None and bias.factor != "between":
-            raise InputError(f"OnlineFusion: bias.factor must be 'between' (an ImuFactor and the random walk between "
-                             f"bias keys, as IMUKittiExampleGPS.py), got {bias.factor!r}")  # fmt: skip
+            raise InputError(
+                f"OnlineFusion: bias.factor must be 'between' (an ImuFactor and the random walk between "
+                f"bias keys, as IMUKittiExampleGPS.py), got {bias.factor!r}"
+            )
         relinearise_tol, relinearize_threshold = online.bias_relinearize_tol, online.relinearize_threshold
         smoother = online.smoother
         given = not config.noise_is_default
@@ -138,7 +142,9 @@ class OnlineFusion:
         if bias is not None:  # tight IMU factors beside a loose bias prior: Cholesky finds the system indeterminate
             params.setFactorization("QR")  # (as with GTSAM's IMUKittiExampleGPS.py, BENCHMARKS.md)
         self._fixed_lag = smoother == "fixed_lag"
-        self._smoother = gtsam.IncrementalFixedLagSmoother(self._lag_s, params) if self._fixed_lag else gtsam.ISAM2(params)
+        self._smoother = (
+            gtsam.IncrementalFixedLagSmoother(self._lag_s, params) if self._fixed_lag else gtsam.ISAM2(params)
+        )
         self._stream = model.initial_state(1) if model is not None else None
         self._t = np.zeros(0)  # sample times from the last keyframe in the graph on (sample index self._base)
         self._samples = np.zeros((0, 12))  # corrected [gyro, acc, gyro_cov, acc_cov] from the same sample on
@@ -190,8 +196,9 @@ class OnlineFusion:
         t, pos = real_array(t, "add_gps: t"), _vector("GPS pos_m", pos_m)
         sigma = real_array(sigma_m, "add_gps: sigma_m")
         if t.shape != () or sigma.shape not in ((), (3,)):
-            raise InputError(f"add_gps: need a time (a float) and sigma_m as a float or (3,), got shapes {t.shape} and "
-                             f"{sigma.shape}")  # fmt: skip
+            raise InputError(
+                f"add_gps: need a time (a float) and sigma_m as a float or (3,), got shapes {t.shape} and {sigma.shape}"
+            )
         t, sigma = float(t), np.broadcast_to(sigma, (3,))
         if not np.isfinite(t) or not np.all(np.isfinite(sigma)) or np.any(sigma <= 0):
             raise InputError(f"add_gps: need a finite time and positive, finite sigma_m, got t={t}, sigma_m={sigma_m}")
@@ -229,9 +236,10 @@ class OnlineFusion:
             log.warning(
                 "OnlineFusion.flush: %d GPS fix(es) at t = %s s lie more than half a keyframe interval after the last "
                 "IMU sample (%s s) and were not used: a GPS clock ahead of the IMU's, or the stream cut short?",
-                len(late), ", ".join(f"{t:.3f}" for t in late[:5]) + (" ..." if len(late) > 5 else ""),
+                len(late),
+                ", ".join(f"{t:.3f}" for t in late[:5]) + (" ..." if len(late) > 5 else ""),
                 f"{self._t[-1]:.3f}",
-            )  # fmt: skip
+            )
         return added
 
     def current_state(self) -> OnlineState:
@@ -373,8 +381,11 @@ class OnlineFusion:
                 self._smoother.update()
                 if not self._relinearise():
                     return
-        log.warning("OnlineFusion.flush: the bias estimates still moved more than relinearise_tol=%g after %d rounds",
-                    self._relinearise_tol, CONVERGE_ROUNDS)  # fmt: skip
+        log.warning(
+            "OnlineFusion.flush: the bias estimates still moved more than relinearise_tol=%g after %d rounds",
+            self._relinearise_tol,
+            CONVERGE_ROUNDS,
+        )
 
     def _attach(self, k: int, fix) -> bool:
         """The GPS factor of ``fix`` on keyframe ``k``: added now if ``k`` is in the graph, else kept for it."""
@@ -412,8 +423,10 @@ class OnlineFusion:
         t = np.atleast_1d(real_array(t, "add_imu: t"))
         gyro, acc = (np.atleast_2d(real_array(x, f"add_imu: {name}")) for x, name in ((gyro, "gyro"), (acc, "acc")))
         if t.ndim != 1 or gyro.shape != (len(t), 3) or acc.shape != gyro.shape:
-            raise InputError(f"add_imu: need t (M,), gyro and acc (M, 3) (or one sample: a float and (3,)); "
-                             f"got {np.shape(t)}, {gyro.shape}, {acc.shape}")  # fmt: skip
+            raise InputError(
+                f"add_imu: need t (M,), gyro and acc (M, 3) (or one sample: a float and (3,)); "
+                f"got {np.shape(t)}, {gyro.shape}, {acc.shape}"
+            )
         raw = np.concatenate([gyro, acc], axis=1)
         if not np.all(np.isfinite(t)) or not np.all(np.isfinite(raw)):
             raise InputError(f"add_imu: NaN or Inf in the block starting at t={t[0]} s")

@@ -40,8 +40,9 @@ def solve_export(export: Export, fixes: GpsFixes, config: FuseConfig | None = No
             params=combined_params(export, bias) if combined else None,
             lm_params=lm_params(settings),
         )
-        log.info("%s: bias re-linearisation: %d solves, last bias change %.2g", export.name, done.rounds,
-                 done.bias_change)  # fmt: skip
+        log.info(
+            "%s: bias re-linearisation: %d solves, last bias change %.2g", export.name, done.rounds, done.bias_change
+        )
         trajectory = trajectory_of(done.values, export.keyframe_t)
         solution = Solution(trajectory, done.graph, done.values, done.rounds, done.graph.error(done.values))
     found = consistency.residuals(solution.graph, solution.values)

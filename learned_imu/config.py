@@ -184,8 +184,12 @@ class TrainConfig:
         _check(self, "train.plateau_factor", lambda v: 0.0 < v < 1.0, "in (0, 1)")
         _check(self, "train.ema_decay", lambda v: 0.0 <= v < 1.0, "in [0, 1) (0 = no weight averaging)")
         _check(self, "train.min_lr", lambda v: 0.0 <= v <= self.lr, f"in [0, train.lr = {self.lr}]")
-        _check(self, "train.chunk", lambda v: v == 0 or v >= self.window,
-               f"0 (windows one by one) or at least train.window = {self.window} samples")  # fmt: skip
+        _check(
+            self,
+            "train.chunk",
+            lambda v: v == 0 or v >= self.window,
+            f"0 (windows one by one) or at least train.window = {self.window} samples",
+        )
         _check(self, "train.gt_rotation", lambda v: not v or self.chunk > 0, "false unless train.chunk is set")
 
 
@@ -250,5 +254,3 @@ def load_config(path: str | Path, data_root: str | Path | None = None) -> Experi
 def save_config(path: str | Path, config: ExperimentConfig) -> None:
     """Write the resolved config as YAML, atomically."""
     save_yaml(path, config)
-
-

@@ -117,8 +117,9 @@ def preintegration_export(
         same = np.flatnonzero(lengths == length)
         per_call = max(1, SAMPLES_PER_CALL // int(length))  # bounds the memory of one batched call
         for first in range(0, len(same), per_call):
-            _integrate_intervals(out, same[first : first + per_call], int(length), keyframe_index,
-                                 (gyro, acc, dt, gyro_cov, acc_cov))  # fmt: skip
+            _integrate_intervals(
+                out, same[first : first + per_call], int(length), keyframe_index, (gyro, acc, dt, gyro_cov, acc_cov)
+            )
 
     arrays = {
         "format_version": np.array(FORMAT_VERSION),
@@ -157,8 +158,10 @@ def check_keyframe_interval(sequence: ImuSequence, interval_s: float, spec: str)
     span = float(sequence.t[-1] - sequence.t[0])
     if interval_s > span:
         hint = " (milliseconds given as seconds?)" if interval_s / 1000.0 <= span else ""
-        raise InputError(f"--keyframes {spec}: the interval is longer than the recording, {span:.4g} s "
-                         f"({len(sequence)} samples): at least two keyframes are needed{hint}")  # fmt: skip
+        raise InputError(
+            f"--keyframes {spec}: the interval is longer than the recording, {span:.4g} s "
+            f"({len(sequence)} samples): at least two keyframes are needed{hint}"
+        )
 
 
 def keyframes_from_spec(sequence: ImuSequence, spec: str) -> np.ndarray:
@@ -185,8 +188,12 @@ def keyframes_from_spec(sequence: ImuSequence, spec: str) -> np.ndarray:
     index, on_sample = nearest_samples(sequence, times)
     if not on_sample.all():
         t0, t1 = float(sequence.t[0]), float(sequence.t[-1])
-        raise DataError(path, "time", f"time {times[~on_sample][0]!r} s lies outside the IMU samples of "
-                        f"{sequence.name} ([{t0!r}, {t1!r}] s, or in a gap; times in ns or on another clock?)")
+        raise DataError(
+            path,
+            "time",
+            f"time {times[~on_sample][0]!r} s lies outside the IMU samples of "
+            f"{sequence.name} ([{t0!r}, {t1!r}] s, or in a gap; times in ns or on another clock?)",
+        )
     if len(index) < 2:
         raise DataError(path, "time", f"{len(index)} keyframe time(s): at least two are needed")
     return index
@@ -208,7 +215,11 @@ def fixes_on_samples(sequence: ImuSequence) -> ImuSequence:
         raise InputError(f"{sequence.name}: no recorded GPS fixes")
     _, on_sample = nearest_samples(sequence, sequence.gps.t)
     if not on_sample.all():
-        log.warning("%s: %d of %d GPS fixes lie in gaps of the IMU and are not used", sequence.name,
-                    int((~on_sample).sum()), on_sample.size)  # fmt: skip
+        log.warning(
+            "%s: %d of %d GPS fixes lie in gaps of the IMU and are not used",
+            sequence.name,
+            int((~on_sample).sum()),
+            on_sample.size,
+        )
     fixes = sequence.gps
     return dataclasses.replace(sequence, gps=fixes[on_sample])

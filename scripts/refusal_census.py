@@ -1,4 +1,4 @@
-"""Refusal census for issue 16 ("every bad value gets a clear error"): hostile inputs per class, run on two trees.
+"""Refusal census ("every bad value gets a clear error"): hostile inputs per class, run on two trees.
 
     python scripts/refusal_census.py --before /tmp/airimu-before --after /work/main
 
@@ -33,8 +33,15 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-CLEAN_TYPES = {"ConfigError", "DataError", "InputError", "FolderBusyError", "DependencyError", "ExportError",
-               "GraphError"}  # fmt: skip
+CLEAN_TYPES = {
+    "ConfigError",
+    "DataError",
+    "InputError",
+    "FolderBusyError",
+    "DependencyError",
+    "ExportError",
+    "GraphError",
+}
 OUTCOMES = ("clean", "traceback", "exit-0", "hang")
 SENTINEL = "@@CENSUS-RESULT@@"
 HEADER = "t,gx,gy,gz,ax,ay,az,px,py,pz,qw,qx,qy,qz,vx,vy,vz"
@@ -65,7 +72,7 @@ class Result:
 
 # ---- inputs ---------------------------------------------------------------------------------------------------------
 
-MAKE_INPUTS = r'''
+MAKE_INPUTS = r"""
 import sys
 from pathlib import Path
 import numpy as np
@@ -129,7 +136,7 @@ config = to_dict(ExperimentConfig("nan", DataConfig((SequenceConfig("simulator")
 torch.save({"format": "airimu-checkpoint", "version": 1, "config": config, "trainer": {"model": state}, "best": {}},
            folder / "nan.pt")
 print(name)
-'''
+"""
 
 EXPORT_CORRUPTIONS = {
     "zero delta_cov[3]": ("delta_cov", "a[3] = 0.0"),
@@ -149,8 +156,14 @@ def make_inputs(after: Path, folder: Path) -> str:
     """Writes the inputs into ``folder``; returns the name of the checkpoint's NaN weight."""
     env = dict(os.environ, PYTHONPATH=str(after))
     env.pop("AIRIMU_DEBUG", None)
-    made = subprocess.run([sys.executable, "-c", MAKE_INPUTS, str(folder)], cwd=folder, env=env, check=True,
-                          stdout=subprocess.PIPE, text=True)  # fmt: skip
+    made = subprocess.run(
+        [sys.executable, "-c", MAKE_INPUTS, str(folder)],
+        cwd=folder,
+        env=env,
+        check=True,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     import numpy as np
 
     with np.load(folder / "seq.npz", allow_pickle=False) as data:
@@ -243,8 +256,7 @@ def build_cases(d: Path) -> list[Case]:
         "export --keyframes 0s": [*ex, "--keyframes", "0s", *dens],
         "export --keyframes abc": [*ex, "--keyframes", "abc", *dens],
         "export --keyframes infs": [*ex, "--keyframes", "infs", *dens],
-        "export --gyro-noise-density -1.7e-4": [*ex, "--gyro-noise-density", "-1.7e-4", "--acc-noise-density",
-                                                "0.08"],
+        "export --gyro-noise-density -1.7e-4": [*ex, "--gyro-noise-density", "-1.7e-4", "--acc-noise-density", "0.08"],
         "export --gyro-noise-density 0": [*ex, "--gyro-noise-density", "0", "--acc-noise-density", "0.08"],
         "fuse --gps-every 0": [*fu, "--out", "f", "--gps-every", "0"],
         "ablate-pgo --config pgo_demo.yaml --epochs 0": ["ablate-pgo", "--config", "pgo_demo.yaml", "--epochs", "0"],
@@ -260,8 +272,7 @@ def build_cases(d: Path) -> list[Case]:
     # 2. Config values: train must fail before training (5 s)
     for i, (name, _) in enumerate(config_cases()):
         args = ["train", "--config", str(d / "configs" / f"config_{i}.yaml"), "--out", "run", "--epochs", "1"]
-        cases.append(Case("2 Config values", name, cli=args, timeout=5.0, timeout_is_accepted=True,
-                          after_startup=True))  # fmt: skip
+        cases.append(Case("2 Config values", name, cli=args, timeout=5.0, timeout_is_accepted=True, after_startup=True))
 
     # 3. Files
     big = d / "big.csv"
@@ -272,8 +283,10 @@ def build_cases(d: Path) -> list[Case]:
         "csv: a folder": (["--dataset", "csv", "--path", str(d / "a_folder")], {}),
         "csv: a missing file": (["--dataset", "csv", "--path", str(d / "nothing.csv")], {}),
         "csv without ground truth (+reader options)": (["--dataset", "csv", "--path", imu_only, *csv_opts], {}),
-        "csv: 10-GB sparse file": (["--dataset", "csv", "--path", str(big)],
-                                   dict(timeout=60.0, memory_limit=8 << 30, cleanup=[big])),  # fmt: skip
+        "csv: 10-GB sparse file": (
+            ["--dataset", "csv", "--path", str(big)],
+            dict(timeout=60.0, memory_limit=8 << 30, cleanup=[big]),
+        ),
     }
     for name, (args, extra) in files.items():
         cases.append(Case("3 Files", f"evaluate {name}", cli=["evaluate", *args], **extra))
@@ -328,18 +341,30 @@ def build_cases(d: Path) -> list[Case]:
     folder, existing = str(d / "a_folder"), str(d / "existing_file")
     cases += [
         Case("7 Outputs", "evaluate --json <folder>", cli=[*ev, "--json", folder]),
-        Case("7 Outputs", "export --out <folder>", cli=["export", "--dataset", "csv", "--path", imu_only, "--out",
-                                                         folder, *dens]),  # fmt: skip
+        Case(
+            "7 Outputs",
+            "export --out <folder>",
+            cli=["export", "--dataset", "csv", "--path", imu_only, "--out", folder, *dens],
+        ),
         Case("7 Outputs", "fuse --out <existing file>", cli=[*fu, "--out", existing]),
-        Case("7 Outputs", "train --out <existing file>", cli=["train", "--config", "demo.yaml", "--out", existing,
-                                                               "--epochs", "1"], timeout=5.0,
-             timeout_is_accepted=True, after_startup=True),  # fmt: skip
+        Case(
+            "7 Outputs",
+            "train --out <existing file>",
+            cli=["train", "--config", "demo.yaml", "--out", existing, "--epochs", "1"],
+            timeout=5.0,
+            timeout_is_accepted=True,
+            after_startup=True,
+        ),
     ]
 
     # 8. Checkpoints
-    cases.append(Case("8 Checkpoints", "export-model of a NaN-weight checkpoint",
-                      cli=["export-model", "--checkpoint", str(d / "nan.pt"), "--format", "torchscript", "--out",
-                           "m.pt"]))  # fmt: skip
+    cases.append(
+        Case(
+            "8 Checkpoints",
+            "export-model of a NaN-weight checkpoint",
+            cli=["export-model", "--checkpoint", str(d / "nan.pt"), "--format", "torchscript", "--out", "m.pt"],
+        )
+    )
     return cases
 
 
@@ -358,8 +383,12 @@ def startup_seconds(tree: Path, scratch: Path) -> float:
     times = []
     for _ in range(2):
         start = time.monotonic()
-        subprocess.run([sys.executable, "-m", "airimu.cli", "train", "--config", "missing.yaml", "--out", "run"],
-                       cwd=scratch, env=env, capture_output=True)  # fmt: skip
+        subprocess.run(
+            [sys.executable, "-m", "airimu.cli", "train", "--config", "missing.yaml", "--out", "run"],
+            cwd=scratch,
+            env=env,
+            capture_output=True,
+        )
         times.append(time.monotonic() - start)
     return max(times)
 
@@ -380,9 +409,18 @@ def run_case(case: Case, tree: Path, scratch: Path, data: Path, nan_weight: str,
 
     timeout = case.timeout + (startup if case.after_startup else 0.0)
     start = time.monotonic()
-    proc = subprocess.Popen(argv, cwd=scratch, env=env, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, errors="replace", start_new_session=True,
-                            preexec_fn=limits)  # fmt: skip
+    proc = subprocess.Popen(
+        argv,
+        cwd=scratch,
+        env=env,
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        errors="replace",
+        start_new_session=True,
+        preexec_fn=limits,
+    )
     try:
         out, err = proc.communicate(timeout=timeout)
         timed_out = False
@@ -435,8 +473,14 @@ def main() -> None:
         data.mkdir()
         for label, tree in trees.items():  # PYTHONPATH beats the editable install: show it
             env = dict(os.environ, PYTHONPATH=str(tree))
-            where = subprocess.run([sys.executable, "-c", "import fusion; print(fusion.__file__)"], cwd=tmp,
-                                   env=env, capture_output=True, text=True, check=True).stdout.strip()  # fmt: skip
+            where = subprocess.run(
+                [sys.executable, "-c", "import fusion; print(fusion.__file__)"],
+                cwd=tmp,
+                env=env,
+                capture_output=True,
+                text=True,
+                check=True,
+            ).stdout.strip()
             print(f"{label}: {tree} (fusion from {where})")
             assert where.startswith(str(tree)), where
         nan_weight = make_inputs(trees["AFTER"], data)
@@ -448,8 +492,10 @@ def main() -> None:
             for label, tree in trees.items():
                 r = run_case(case, tree, tmp / "scratch" / label / str(i), data, nan_weight, startup[label])
                 results[label, i] = r
-                print(f"[{label:6}] {case.cls:15} {case.name:45} {r.outcome:9} {r.seconds:6.1f}s  {r.last_line}",
-                      flush=True)  # fmt: skip
+                print(
+                    f"[{label:6}] {case.cls:15} {case.name:45} {r.outcome:9} {r.seconds:6.1f}s  {r.last_line}",
+                    flush=True,
+                )
 
     classes = list(dict.fromkeys(c.cls for c in cases))
     print()

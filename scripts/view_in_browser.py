@@ -41,10 +41,19 @@ CLICK_JS = """(() => {
   canvas.dispatchEvent(new PointerEvent("pointerup", {...at, button: 0, buttons: 0}));
 })()"""
 CHROMIUM_FLAGS = (
-    "--headless", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader", "--disable-quic", "--no-first-run",
-    "--disable-background-networking", "--disable-component-update", "--disable-sync", "--hide-scrollbars",
-    "--disable-background-timer-throttling", "--disable-renderer-backgrounding",
-)  # fmt: skip
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--enable-unsafe-swiftshader",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--hide-scrollbars",
+    "--disable-background-timer-throttling",
+    "--disable-renderer-backgrounding",
+)
 
 
 def main() -> int:
@@ -67,19 +76,37 @@ def main() -> int:
     profile = tempfile.mkdtemp(prefix="airimu-chromium-")
     try:
         server = subprocess.Popen(
-            [_rerun_binary(), "--serve-web", "--bind", HOST, "--web-viewer-port", str(web),
-             "--port", str(grpc), "--hide-welcome-screen", str(args.recording)],
-            stdout=subprocess.DEVNULL, stderr=(args.out / "rerun.log").open("w"),
-        )  # fmt: skip
+            [
+                _rerun_binary(),
+                "--serve-web",
+                "--bind",
+                HOST,
+                "--web-viewer-port",
+                str(web),
+                "--port",
+                str(grpc),
+                "--hide-welcome-screen",
+                str(args.recording),
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=(args.out / "rerun.log").open("w"),
+        )
         _wait_for_port(web, 30.0)
         proxy = urllib.parse.quote(f"rerun+http://{HOST}:{grpc}/proxy", safe="")
         url = f"http://{HOST}:{web}/?url={proxy}"
         print(f"rerun (pid {server.pid}) serves {url}")
         browser = subprocess.Popen(
-            [args.chromium, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", f"--remote-debugging-port={debug}",
-             f"--window-size={width},{height}", url],
-            stdout=subprocess.DEVNULL, stderr=(args.out / "chromium.log").open("w"),
-        )  # fmt: skip
+            [
+                args.chromium,
+                *CHROMIUM_FLAGS,
+                f"--user-data-dir={profile}",
+                f"--remote-debugging-port={debug}",
+                f"--window-size={width},{height}",
+                url,
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=(args.out / "chromium.log").open("w"),
+        )
         print(f"chromium (pid {browser.pid}) is loading the viewer; waiting {args.wait:.0f} s")
         page = _DevTools(_page_socket(debug, 30.0))
         page.call("Emulation.setDeviceMetricsOverride", width=width, height=height, deviceScaleFactor=1, mobile=False)
@@ -183,8 +210,10 @@ class _DevTools:
         parts = urllib.parse.urlsplit(url)
         self.sock = socket.create_connection((parts.hostname, parts.port), timeout=60.0)
         key = base64.b64encode(os.urandom(16)).decode()
-        request = (f"GET {parts.path} HTTP/1.1\r\nHost: {parts.hostname}:{parts.port}\r\nUpgrade: websocket\r\n"
-                   f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n")  # fmt: skip
+        request = (
+            f"GET {parts.path} HTTP/1.1\r\nHost: {parts.hostname}:{parts.port}\r\nUpgrade: websocket\r\n"
+            f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n"
+        )
         self.sock.sendall(request.encode())
         head = b""
         while b"\r\n\r\n" not in head:
@@ -209,9 +238,13 @@ class _DevTools:
     def _send(self, payload: bytes) -> None:
         mask = os.urandom(4)
         n = len(payload)
-        header = bytes([0x81]) + (bytes([0x80 | n]) if n < 126 else
-                                  bytes([0x80 | 126]) + struct.pack(">H", n) if n < 65536 else
-                                  bytes([0x80 | 127]) + struct.pack(">Q", n))  # fmt: skip
+        header = bytes([0x81]) + (
+            bytes([0x80 | n])
+            if n < 126
+            else bytes([0x80 | 126]) + struct.pack(">H", n)
+            if n < 65536
+            else bytes([0x80 | 127]) + struct.pack(">Q", n)
+        )
         self.sock.sendall(header + mask + bytes(b ^ mask[i % 4] for i, b in enumerate(payload)))
 
     def _receive(self) -> bytes:

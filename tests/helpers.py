@@ -67,9 +67,17 @@ def gtsam_pim(seed: int, n: int = 200, dt: float = 0.005) -> gtsam.Preintegrated
 def factor_from_pim(pim) -> LearnedImuFactor:
     """Our factor on GTSAM's deltas and covariance (no bias key)."""
     return LearnedImuFactor(
-        X(0), V(0), X(1), V(1), pim.deltaRij().matrix(), pim.deltaPij(), pim.deltaVij(), pim.deltaTij(),
-        pim.preintMeasCov(), gravity=[0.0, 0.0, -GRAVITY],
-    )  # fmt: skip
+        X(0),
+        V(0),
+        X(1),
+        V(1),
+        pim.deltaRij().matrix(),
+        pim.deltaPij(),
+        pim.deltaVij(),
+        pim.deltaTij(),
+        pim.preintMeasCov(),
+        gravity=[0.0, 0.0, -GRAVITY],
+    )
 
 
 def factor_with_bias_from_samples(seed: int, n: int = 200, dt: float = 0.005):
@@ -84,9 +92,19 @@ def factor_with_bias_from_samples(seed: int, n: int = 200, dt: float = 0.005):
     acc = rng.normal(0, 2, (n, 3)) + [0, 0, GRAVITY]
     pre = preintegrate(torch.tensor(gyro), torch.tensor(acc), dt, 1e-4, 1e-3, at=-1, bias_jacobian=True)
     ours = LearnedImuFactor(
-        X(0), V(0), X(1), V(1), pre.rot[0].numpy(), pre.pos[0].numpy(), pre.vel[0].numpy(), pre.dt[0].item(),
-        pre.cov[0].numpy(), gravity=[0.0, 0.0, -GRAVITY], bias=B(0), bias_jacobian=pre.bias_jacobian[0].numpy(),
-    )  # fmt: skip
+        X(0),
+        V(0),
+        X(1),
+        V(1),
+        pre.rot[0].numpy(),
+        pre.pos[0].numpy(),
+        pre.vel[0].numpy(),
+        pre.dt[0].item(),
+        pre.cov[0].numpy(),
+        gravity=[0.0, 0.0, -GRAVITY],
+        bias=B(0),
+        bias_jacobian=pre.bias_jacobian[0].numpy(),
+    )
     params = gtsam.PreintegrationParams.MakeSharedU(GRAVITY)
     params.setGyroscopeCovariance(np.eye(3) * 1e-4)
     params.setAccelerometerCovariance(np.eye(3) * 1e-3)
@@ -104,6 +122,10 @@ def write_checkpoint(path, model_config, weights: dict, remove_gravity: bool = F
     from learned_imu.network.checkpoint import Checkpoint, save_checkpoint
 
     simulated = (SequenceConfig("simulator"),)
-    config = ExperimentConfig("hand-made", DataConfig(train=simulated, val=simulated), model=model_config,
-                              train=TrainConfig(remove_gravity=remove_gravity))  # fmt: skip
+    config = ExperimentConfig(
+        "hand-made",
+        DataConfig(train=simulated, val=simulated),
+        model=model_config,
+        train=TrainConfig(remove_gravity=remove_gravity),
+    )
     return save_checkpoint(path, Checkpoint(config, {"model": weights}))

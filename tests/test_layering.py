@@ -70,7 +70,13 @@ ALL = [m for package in FORBIDDEN for m in submodules(package)]
 
 
 def test_every_submodule_is_walked():
-    expected = {"learned_imu.datasets.csv", "factors.imu", "airimu.viz.recording", "airimu_core.export", "fusion.online"}
+    expected = {
+        "learned_imu.datasets.csv",
+        "factors.imu",
+        "airimu.viz.recording",
+        "airimu_core.export",
+        "fusion.online",
+    }
     assert expected <= set(ALL)
 
 

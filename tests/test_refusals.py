@@ -51,12 +51,18 @@ def write_csv(path: Path, seq, pos_scale: float = 1.0, vel_scale: float = 1.0) -
 def files(flight, tmp_path_factory):
     folder = tmp_path_factory.mktemp("refusals")
     write_csv(folder / "imu.csv", flight)
-    np.savetxt(folder / "imu_only.csv", np.column_stack([flight.t, flight.gyro, flight.acc]), delimiter=",",
-               header="t,gx,gy,gz,ax,ay,az", comments="")  # fmt: skip
+    np.savetxt(
+        folder / "imu_only.csv",
+        np.column_stack([flight.t, flight.gyro, flight.acc]),
+        delimiter=",",
+        header="t,gx,gy,gz,ax,ay,az",
+        comments="",
+    )
     gps = flight.gps
     for name, rows in {"gps.csv": slice(None), "gps_two_close.csv": slice(0, 2)}.items():
-        np.savetxt(folder / name, np.column_stack([gps.t[rows], gps.pos[rows]]), delimiter=",", header="t,x,y,z",
-                   comments="")  # fmt: skip
+        np.savetxt(
+            folder / name, np.column_stack([gps.t[rows], gps.pos[rows]]), delimiter=",", header="t,x,y,z", comments=""
+        )
     (folder / "empty.mat").write_bytes(b"")
     (folder / "random.bag").write_bytes(np.random.default_rng(0).bytes(5000))
     (folder / "random.csv").write_bytes(np.random.default_rng(1).bytes(5000))
@@ -87,33 +93,147 @@ def reader_options(keys: dict) -> list[str]:
 CLI_CASES = {
     "unknown dataset": (["evaluate", "--dataset", "foo", "--path", "{imu}"], "unknown reader 'foo'"),
     "interval 0": (["evaluate", "--dataset", "csv", "--path", "{imu}", "--interval", "0"], "--interval must be"),
-    "interval unit": (["evaluate", "--dataset", "csv", "--path", "{imu}", "--interval-unit", "minutes"],
-                      "--interval-unit must be"),  # fmt: skip
-    "keyframes 0s": (["export", "--dataset", "csv", "--path", "{imu_only}", "--out", "{tmp}/e.npz", "--keyframes",
-                      "0s", "--gyro-noise-density", "0.004", "--acc-noise-density", "0.08", *reader_options(CSV_KEYS)],
-                     "keyframes: interval must be positive"),  # fmt: skip
-    "keyframes 5000s": (["export", "--dataset", "csv", "--path", "{imu_only}", "--out", "{tmp}/e.npz", "--keyframes",
-                         "5000s", "--gyro-noise-density", "0.004", "--acc-noise-density", "0.08",
-                         *reader_options(CSV_KEYS)], "--keyframes 5000s: the interval is longer than the recording"),
-    "keyframes abc": (["export", "--dataset", "csv", "--path", "{imu_only}", "--out", "{tmp}/e.npz", "--keyframes",
-                       "abc", "--gyro-noise-density", "0.004", "--acc-noise-density", "0.08",
-                       *reader_options(CSV_KEYS)], "'abc' is neither"),  # fmt: skip
-    "negative density": (["export", "--dataset", "csv", "--path", "{imu_only}", "--out", "{tmp}/e.npz",
-                          "--gyro-noise-density", "-1.7e-4", "--acc-noise-density", "0.08"], "--gyro-noise-density"),
-    "gps every 0": (["fuse", "--dataset", "csv", "--path", "{imu}", "--out", "{tmp}/f", "--gps-every", "0"],
-                    "--gps-every must be"),  # fmt: skip
-    "fuse keyframes 5000s": (["fuse", "--dataset", "csv", "--path", "{imu_only}", "--gps", "{gps}", "--out", "{tmp}/f",
-                              "--keyframes", "5000s"], "--keyframes 5000s: the interval is longer than the recording"),
-    "fuse keyframes 1e308s": (["fuse", "--dataset", "csv", "--path", "{imu_only}", "--gps", "{gps}", "--out",
-                               "{tmp}/f", "--keyframes", "1e308s"], "the interval is longer than the recording"),
-    "gps time offset nan": (["fuse", "--dataset", "csv", "--path", "{imu_only}", "--gps", "{gps}", "--out", "{tmp}/f",
-                             "--gps-time-offset", "nan"], "--gps-time-offset: expected seconds within +-3600"),
-    "reader option typo": (["evaluate", "--dataset", "csv", "--path", "{imu}", "--reader-option", "sede=1"],
-                           "reader option 'sede': csv has no such option"),  # fmt: skip
-    "reader option type": (["evaluate", "--dataset", "csv", "--path", "{imu}", "--reader-option", "gravity=up"],
-                           "reader option 'gravity': expected float"),  # fmt: skip
-    "reader option form": (["evaluate", "--dataset", "csv", "--path", "{imu}", "--reader-option", "gravity"],
-                           "expected key=value"),  # fmt: skip
+    "interval unit": (
+        ["evaluate", "--dataset", "csv", "--path", "{imu}", "--interval-unit", "minutes"],
+        "--interval-unit must be",
+    ),
+    "keyframes 0s": (
+        [
+            "export",
+            "--dataset",
+            "csv",
+            "--path",
+            "{imu_only}",
+            "--out",
+            "{tmp}/e.npz",
+            "--keyframes",
+            "0s",
+            "--gyro-noise-density",
+            "0.004",
+            "--acc-noise-density",
+            "0.08",
+            *reader_options(CSV_KEYS),
+        ],
+        "keyframes: interval must be positive",
+    ),
+    "keyframes 5000s": (
+        [
+            "export",
+            "--dataset",
+            "csv",
+            "--path",
+            "{imu_only}",
+            "--out",
+            "{tmp}/e.npz",
+            "--keyframes",
+            "5000s",
+            "--gyro-noise-density",
+            "0.004",
+            "--acc-noise-density",
+            "0.08",
+            *reader_options(CSV_KEYS),
+        ],
+        "--keyframes 5000s: the interval is longer than the recording",
+    ),
+    "keyframes abc": (
+        [
+            "export",
+            "--dataset",
+            "csv",
+            "--path",
+            "{imu_only}",
+            "--out",
+            "{tmp}/e.npz",
+            "--keyframes",
+            "abc",
+            "--gyro-noise-density",
+            "0.004",
+            "--acc-noise-density",
+            "0.08",
+            *reader_options(CSV_KEYS),
+        ],
+        "'abc' is neither",
+    ),
+    "negative density": (
+        [
+            "export",
+            "--dataset",
+            "csv",
+            "--path",
+            "{imu_only}",
+            "--out",
+            "{tmp}/e.npz",
+            "--gyro-noise-density",
+            "-1.7e-4",
+            "--acc-noise-density",
+            "0.08",
+        ],
+        "--gyro-noise-density",
+    ),
+    "gps every 0": (
+        ["fuse", "--dataset", "csv", "--path", "{imu}", "--out", "{tmp}/f", "--gps-every", "0"],
+        "--gps-every must be",
+    ),
+    "fuse keyframes 5000s": (
+        [
+            "fuse",
+            "--dataset",
+            "csv",
+            "--path",
+            "{imu_only}",
+            "--gps",
+            "{gps}",
+            "--out",
+            "{tmp}/f",
+            "--keyframes",
+            "5000s",
+        ],
+        "--keyframes 5000s: the interval is longer than the recording",
+    ),
+    "fuse keyframes 1e308s": (
+        [
+            "fuse",
+            "--dataset",
+            "csv",
+            "--path",
+            "{imu_only}",
+            "--gps",
+            "{gps}",
+            "--out",
+            "{tmp}/f",
+            "--keyframes",
+            "1e308s",
+        ],
+        "the interval is longer than the recording",
+    ),
+    "gps time offset nan": (
+        [
+            "fuse",
+            "--dataset",
+            "csv",
+            "--path",
+            "{imu_only}",
+            "--gps",
+            "{gps}",
+            "--out",
+            "{tmp}/f",
+            "--gps-time-offset",
+            "nan",
+        ],
+        "--gps-time-offset: expected seconds within +-3600",
+    ),
+    "reader option typo": (
+        ["evaluate", "--dataset", "csv", "--path", "{imu}", "--reader-option", "sede=1"],
+        "reader option 'sede': csv has no such option",
+    ),
+    "reader option type": (
+        ["evaluate", "--dataset", "csv", "--path", "{imu}", "--reader-option", "gravity=up"],
+        "reader option 'gravity': expected float",
+    ),
+    "reader option form": (
+        ["evaluate", "--dataset", "csv", "--path", "{imu}", "--reader-option", "gravity"],
+        "expected key=value",
+    ),
     "json is a folder": (["evaluate", "--dataset", "csv", "--path", "{imu}", "--json", "{tmp}"], "is a folder"),
     "out is a file": (["fuse", "--dataset", "csv", "--path", "{imu}", "--out", "{imu}"], "--out: "),
     "export out is a folder": (["export", "--dataset", "csv", "--path", "{imu}", "--out", "{tmp}"], "is a folder"),
@@ -128,8 +248,13 @@ CLI_CASES = {
 @pytest.mark.parametrize("case", sorted(CLI_CASES))
 def test_cli_values_are_refused_naming_the_flag(case, files, tmp_path, capsys, monkeypatch):
     args, message = CLI_CASES[case]
-    paths = {"imu": files / "imu.csv", "imu_only": files / "imu_only.csv", "gps": files / "gps.csv", "tmp": tmp_path,
-             "binary": files / "random.csv"}  # fmt: skip
+    paths = {
+        "imu": files / "imu.csv",
+        "imu_only": files / "imu_only.csv",
+        "gps": files / "gps.csv",
+        "tmp": tmp_path,
+        "binary": files / "random.csv",
+    }
     code, err = cli(capsys, monkeypatch, *(a.format(**paths) for a in args))
     assert code == 2
     assert message in " ".join(err.replace("│", " ").split())  # typer boxes and wraps its message
@@ -167,8 +292,18 @@ def test_unreadable_files_are_one_line_naming_the_file(case, files, capsys, monk
 
 
 def test_graph_and_export_errors_print_as_one_line(files, tmp_path, capsys, monkeypatch):
-    args = ["fuse", "--dataset", "csv", "--path", files / "imu_only.csv", "--gps", files / "gps_two_close.csv",
-            "--out", tmp_path / "f", *reader_options(CSV_KEYS)]  # fmt: skip
+    args = [
+        "fuse",
+        "--dataset",
+        "csv",
+        "--path",
+        files / "imu_only.csv",
+        "--gps",
+        files / "gps_two_close.csv",
+        "--out",
+        tmp_path / "f",
+        *reader_options(CSV_KEYS),
+    ]
     code, err = cli(capsys, monkeypatch, *args)
     assert code == 2 and err.startswith("airimu: error: ") and "under-constrained" in err and "Traceback" not in err
     assert not (tmp_path / "f" / "fused.tum").exists()
@@ -233,8 +368,11 @@ def test_config_numbers_out_of_range_name_the_key(key, data):
 
     section, name = key.split(".")
     value = data.draw(BAD_NUMBERS[key], label=key)
-    config = {"name": "x", "data": {"train": [{"dataset": "simulator"}], "val": [{"dataset": "simulator"}]},
-              section: {name: value}}  # fmt: skip
+    config = {
+        "name": "x",
+        "data": {"train": [{"dataset": "simulator"}], "val": [{"dataset": "simulator"}]},
+        section: {name: value},
+    }
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "bad.yaml"
         path.write_text(yaml.safe_dump(config))
@@ -246,8 +384,11 @@ def test_config_numbers_out_of_range_name_the_key(key, data):
 def test_nested_yaml_aliases_are_refused_before_they_expand(tmp_path):
     """~10^9 elements in a few hundred bytes: refused by size, never expanded (``dataclasses.asdict`` hung on it)."""
     levels = ["a0: &a0 [1, 1, 1, 1, 1, 1, 1, 1, 1, 1]"]
-    levels += [f"a{i}: &a{i} [*a{i - 1}, *a{i - 1}, *a{i - 1}, *a{i - 1}, *a{i - 1}, *a{i - 1}, *a{i - 1}, "
-               f"*a{i - 1}, *a{i - 1}, *a{i - 1}]" for i in range(1, 9)]  # fmt: skip
+    levels += [
+        f"a{i}: &a{i} [*a{i - 1}, *a{i - 1}, *a{i - 1}, *a{i - 1}, *a{i - 1}, *a{i - 1}, *a{i - 1}, "
+        f"*a{i - 1}, *a{i - 1}, *a{i - 1}]"
+        for i in range(1, 9)
+    ]
     body = "\n".join(f"      {line}" for line in levels)
     path = tmp_path / "bomb.yaml"
     path.write_text(f"name: x\ndata:\n  train:\n  - dataset: simulator\n    options:\n{body}\n  val: []\n")
@@ -286,8 +427,11 @@ EXPORT_CASES = {
     "zero delta_dt": ("delta_dt", _set(2, 0.0), "delta_dt must be positive"),
     "negative delta_dt": ("delta_dt", _set(2, -0.5), "delta_dt must be positive"),
     "not a rotation": ("delta_rot", _set((1, 0, 0), 2.0), "not a rotation"),
-    "unsorted keyframes": ("keyframe_index", lambda a: a.__setitem__(slice(2, 4), a[2:4][::-1].copy()),
-                           "keyframe_index"),  # fmt: skip
+    "unsorted keyframes": (
+        "keyframe_index",
+        lambda a: a.__setitem__(slice(2, 4), a[2:4][::-1].copy()),
+        "keyframe_index",
+    ),
     "keyframe past the end": ("keyframe_index", _set(-1, 10**6), "keyframe_index"),
     "gravity up": ("gravity", lambda a: a.__imul__(-1.0), "does not point down"),
     "zero gravity": ("gravity", _set(slice(None), 0.0), "magnitude"),
@@ -312,8 +456,13 @@ def test_bad_exports_are_refused_on_every_backend(case, backend, exported, tmp_p
 
 @pytest.mark.parametrize(
     ("pos_scale", "vel_scale", "field", "hint"),
-    [(1000.0, 1000.0, "gt.vel", "in mm"), (100.0, 100.0, "gt.vel", "in cm"), (0.001, 0.001, "gt.vel", "in km"),
-     (1.0, -1.0, "gt.vel", "negated"), (1000.0, 1.0, "gt.pos", "in mm")],  # fmt: skip
+    [
+        (1000.0, 1000.0, "gt.vel", "in mm"),
+        (100.0, 100.0, "gt.vel", "in cm"),
+        (0.001, 0.001, "gt.vel", "in km"),
+        (1.0, -1.0, "gt.vel", "negated"),
+        (1000.0, 1.0, "gt.pos", "in mm"),
+    ],
 )
 def test_ground_truth_units_and_signs_are_caught(pos_scale, vel_scale, field, hint, flight, tmp_path):
     path = write_csv(tmp_path / "gt.csv", flight, pos_scale, vel_scale)
@@ -368,8 +517,9 @@ def test_a_checkpoint_with_nan_weights_is_named(tmp_path, capsys, monkeypatch):
     path = write_checkpoint(tmp_path / "nan.pt", config, state)
     with pytest.raises(DataError, match=f"trainer.model.{name}.*NaN or Inf weights"):
         model_from_checkpoint(path)
-    code, err = cli(capsys, monkeypatch, "export-model", "--checkpoint", path, "--format", "torchscript", "--out",
-                    tmp_path / "m.pt")  # fmt: skip
+    code, err = cli(
+        capsys, monkeypatch, "export-model", "--checkpoint", path, "--format", "torchscript", "--out", tmp_path / "m.pt"
+    )
     assert code == 2 and "NaN or Inf weights" in err and not (tmp_path / "m.pt").exists()
 
 
@@ -433,8 +583,10 @@ def test_fixed_choices_in_configs_are_literal_types(key, tmp_path):
 def test_pgo_and_fusion_choices_are_literal_types(tmp_path):
     from airimu.experiments.pgo_config import load_pgo_config
 
-    for block, key, message in (("options: {gps_source: radio}", "options.gps_source", "auto, simulated, recorded"),
-                                ("fusion: {backend: ceres}", "fusion.backend", "gtsam, custom")):  # fmt: skip
+    for block, key, message in (
+        ("options: {gps_source: radio}", "options.gps_source", "auto, simulated, recorded"),
+        ("fusion: {backend: ceres}", "fusion.backend", "gtsam, custom"),
+    ):
         path = tmp_path / "pgo.yaml"
         path.write_text(f"name: p\nexperiment: demo.yaml\nrun: r\n{block}\n")
         with pytest.raises(ConfigError, match=rf"key '{key}': expected one of {message}"):

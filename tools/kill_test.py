@@ -1,4 +1,4 @@
-"""SIGKILL the writing commands at random moments and check what they leave (issue 28, part 4).
+"""SIGKILL the writing commands at random moments and check what they leave (BENCHMARKS.md, Faults).
 
     python tools/kill_test.py --kills 20 [--commands train,export,fuse,ablate-pgo] [--json FILE]
 
@@ -43,10 +43,24 @@ model: {conv_channels: [8, 16], gru_sizes: [16], decoder_hidden: 16}
 train: {window: 200, every: 50, batch_size: 4, epochs: 6, lr: 3e-3, calibration_steps: 10}
 """
 EPOCHS = 6
-KITTI = ["--dataset", "kitti_raw", "--path", str(DATA / "kitti_raw" / "2011_10_03_drive_0027.csv"),
-         "--reader-option", "on_backward=drop", "--reader-option", "on_duplicate=drop", "--reader-option",
-         "on_gap=keep", "--gps", str(DATA / "kitti_gtsam" / "KittiGps_converted.txt"), "--gps-every", "10",
-         "--keyframes", "1s"]  # fmt: skip
+KITTI = [
+    "--dataset",
+    "kitti_raw",
+    "--path",
+    str(DATA / "kitti_raw" / "2011_10_03_drive_0027.csv"),
+    "--reader-option",
+    "on_backward=drop",
+    "--reader-option",
+    "on_duplicate=drop",
+    "--reader-option",
+    "on_gap=keep",
+    "--gps",
+    str(DATA / "kitti_gtsam" / "KittiGps_converted.txt"),
+    "--gps-every",
+    "10",
+    "--keyframes",
+    "1s",
+]
 
 
 def commands(work: Path) -> dict:
@@ -60,15 +74,52 @@ def commands(work: Path) -> dict:
             f"options: {{gps_hz: [1.0], seeds: {seeds}, keyframe_interval_s: 0.2}}\n"
         )
     return {
-        "train": (lambda out, config="kill.yaml": [AIRIMU, "train", "--config", str(work / config), "--out", str(out),
-                                                   "--no-progress"], check_train),  # fmt: skip
-        "export": (lambda out: [AIRIMU, "export", "--dataset", "euroc", "--path", str(DATA / "euroc" / "V1_02_medium"),
-                                "--out", str(out / "e.npz"), "--keyframes", "1s", "--gyro-noise-density", "1.7e-4",
-                                "--acc-noise-density", "2e-3"], check_export),  # fmt: skip
+        "train": (
+            lambda out, config="kill.yaml": [
+                AIRIMU,
+                "train",
+                "--config",
+                str(work / config),
+                "--out",
+                str(out),
+                "--no-progress",
+            ],
+            check_train,
+        ),
+        "export": (
+            lambda out: [
+                AIRIMU,
+                "export",
+                "--dataset",
+                "euroc",
+                "--path",
+                str(DATA / "euroc" / "V1_02_medium"),
+                "--out",
+                str(out / "e.npz"),
+                "--keyframes",
+                "1s",
+                "--gyro-noise-density",
+                "1.7e-4",
+                "--acc-noise-density",
+                "2e-3",
+            ],
+            check_export,
+        ),
         "fuse": (lambda out: [AIRIMU, "fuse", *KITTI, "--out", str(out)], check_fuse),
-        "ablate-pgo": (lambda out, config="pgo.yaml": [AIRIMU, "ablate-pgo", "--config", str(work / config), "--out",
-                                                       str(out), "--json", str(out / "table.json"), "--no-progress"],
-                       check_pgo),  # fmt: skip
+        "ablate-pgo": (
+            lambda out, config="pgo.yaml": [
+                AIRIMU,
+                "ablate-pgo",
+                "--config",
+                str(work / config),
+                "--out",
+                str(out),
+                "--json",
+                str(out / "table.json"),
+                "--no-progress",
+            ],
+            check_pgo,
+        ),
     }
 
 
@@ -164,8 +215,19 @@ def main() -> int:
         work = Path(folder)
         table = commands(work)
         if "ablate-pgo" in args.commands:  # its model trained once, so that the kills land in the ablation
-            subprocess.run([AIRIMU, "train", "--config", str(work / "pgo_model.yaml"), "--out",
-                            str(work / "pgo_model"), "--no-progress"], check=True, capture_output=True)  # fmt: skip
+            subprocess.run(
+                [
+                    AIRIMU,
+                    "train",
+                    "--config",
+                    str(work / "pgo_model.yaml"),
+                    "--out",
+                    str(work / "pgo_model"),
+                    "--no-progress",
+                ],
+                check=True,
+                capture_output=True,
+            )
         for name in args.commands.split(","):
             argv_of, check = table[name]
             start = time.perf_counter()
@@ -185,10 +247,18 @@ def main() -> int:
             longer = {"train": "kill_long.yaml", "ablate-pgo": "pgo_long.yaml"}  # runs long enough to meet a second
             busy = functools.partial(argv_of, config=longer[name]) if name in longer else argv_of
             lock = busy_refused(busy, work / f"{name}-busy") if name != "export" else None
-            results[name] = {"kills": args.kills, "landed_before_the_end": landed, "uninterrupted_s": round(whole, 1),
-                             "violations": problems, "second_writer_refused": lock}  # fmt: skip
-            print(f"{name}: {args.kills} SIGKILLs, {landed} before the end (a run takes {whole:.1f} s); "
-                  f"violations: {len(problems)}; a second writer refused: {lock}", flush=True)  # fmt: skip
+            results[name] = {
+                "kills": args.kills,
+                "landed_before_the_end": landed,
+                "uninterrupted_s": round(whole, 1),
+                "violations": problems,
+                "second_writer_refused": lock,
+            }
+            print(
+                f"{name}: {args.kills} SIGKILLs, {landed} before the end (a run takes {whole:.1f} s); "
+                f"violations: {len(problems)}; a second writer refused: {lock}",
+                flush=True,
+            )
             for problem in problems:
                 print(f"  {problem}", flush=True)
     if args.json_out:

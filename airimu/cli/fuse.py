@@ -36,8 +36,16 @@ def demo(
     config = dataclasses.replace(
         config, run=str(folder / "run"), options=dataclasses.replace(config.options, seeds=seeds)
     )
-    _run_pgo(config, folder, folder / "ablation.json", folder / "ablation.csv", folder / "demo.rrd",
-             folder / "demo.png", epochs, progress)  # fmt: skip
+    _run_pgo(
+        config,
+        folder,
+        folder / "ablation.json",
+        folder / "ablation.csv",
+        folder / "demo.rrd",
+        folder / "demo.png",
+        epochs,
+        progress,
+    )
 
 
 @app.command("ablate-pgo")
@@ -117,12 +125,15 @@ def fuse(
     ),
     gps: str = typer.Option(None, help=GPS_HELP),
     gps_sigma: float = typer.Option(
-        None, help="GPS one-sigma per axis (m): for a --gps file without sigma columns, or replacing the sigmas of "
+        None,
+        help="GPS one-sigma per axis (m): for a --gps file without sigma columns, or replacing the sigmas of "
         "the log's own fixes; default: config gps_sigma_m (files) or the reader's (the log's fixes)",
     ),
     gps_every: int = typer.Option(1, help="fuse every n-th fix (all of them score the result)"),
     checkpoint: str = typer.Option(None, help="a trained model; without it the raw IMU with fixed noise"),
-    bias: bool = typer.Option(None, "--bias/--no-bias", help="estimate a bias state per keyframe (config: estimate_bias)"),
+    bias: bool = typer.Option(
+        None, "--bias/--no-bias", help="estimate a bias state per keyframe (config: estimate_bias)"
+    ),
     keyframes: str = typer.Option(
         None, help="'fixes' (a keyframe at every fused fix) or an interval like '1s'; default: config keyframe_s"
     ),
@@ -134,7 +145,8 @@ def fuse(
     ),
     reader_option: list[str] = typer.Option(None, help=READER_OPTION_HELP),  # noqa: B008 (typer reads repeats as a list)
     gps_time_offset: float = typer.Option(
-        0.0, help="seconds the GPS clock runs ahead of the IMU's, subtracted from every fix time (a GPS track that "
+        0.0,
+        help="seconds the GPS clock runs ahead of the IMU's, subtracted from every fix time (a GPS track that "
         "fits the IMU far better shifted is warned about with its estimated offset)",
     ),
 ) -> None:

@@ -81,9 +81,13 @@ SETTINGS = (
 # 0.01 (continuous-time sigmas), AccelerometerBiasSigma 1.67e-4 and GyroscopeBiasSigma 2.91e-6 per sample (the
 # example scales them by sqrt(samples since its first keyframe): walk="cumulative"), bias prior sigmas 0.1 and 5e-5
 GTSAM_EXAMPLE = PgoSetting(
-    "GTSAM example (raw IMU + bias states)", "raw", "fixed", (1.75e-4, 0.01),
-    BiasStates(1.67e-4, 2.91e-6, 0.1, 5e-5, walk="cumulative"), key="raw_gtsam_example",
-)  # fmt: skip
+    "GTSAM example (raw IMU + bias states)",
+    "raw",
+    "fixed",
+    (1.75e-4, 0.01),
+    BiasStates(1.67e-4, 2.91e-6, 0.1, 5e-5, walk="cumulative"),
+    key="raw_gtsam_example",
+)
 
 
 @dataclass(frozen=True)
@@ -172,8 +176,10 @@ def gps_for(
         truth = GpsFixes(sequence.t, sequence.gt.pos, np.zeros((len(sequence), 3)))
         return fuse, truth
     if sequence.gps is None:
-        raise InputError(f"{sequence.name}: PGO needs ground truth or GPS fixes, and the sequence was read with "
-                         "neither (a reader's gps_file or gps_topic option, or its ground-truth file)")  # fmt: skip
+        raise InputError(
+            f"{sequence.name}: PGO needs ground truth or GPS fixes, and the sequence was read with "
+            "neither (a reader's gps_file or gps_topic option, or its ground-truth file)"
+        )
     fixes = sequence.gps
     step = recorded_phases(sequence, rate_hz)
     keep = np.arange(seed % step, len(fixes.t), step)
@@ -188,8 +194,10 @@ def recorded_phases(sequence: ImuSequence, rate_hz: float) -> int:
     """How many recorded fixes there are per fused fix at ``rate_hz``: the number of distinct decimations."""
     if sequence.gps is None or len(sequence.gps.t) < 2:
         count = 0 if sequence.gps is None else len(sequence.gps.t)
-        raise InputError(f"{sequence.name}: PGO on recorded GPS needs at least two fixes in the IMU's time span, "
-                         f"the sequence has {count}")  # fmt: skip
+        raise InputError(
+            f"{sequence.name}: PGO on recorded GPS needs at least two fixes in the IMU's time span, "
+            f"the sequence has {count}"
+        )
     return max(1, int(round(1.0 / (rate_hz * float(np.median(np.diff(sequence.gps.t)))))))
 
 
@@ -243,17 +251,32 @@ def run_sequence(
                 if seed == 0 and rate == options.gps_hz[0]:
                     examples[setting.name] = (solution, fuse)
             chi2 = {kind: _mean_per_dof(fits, kind) for kind in ("gps", "imu")}
-            rows.append(PgoRow(setting.name, rate, sequence.name, float(np.mean(ates)), float(np.std(ates)),
-                               chi2["gps"], chi2["imu"]))  # fmt: skip
+            rows.append(
+                PgoRow(
+                    setting.name,
+                    rate,
+                    sequence.name,
+                    float(np.mean(ates)),
+                    float(np.std(ates)),
+                    chi2["gps"],
+                    chi2["imu"],
+                )
+            )
             log.info("%s", asdict(rows[-1]))
             for kind in ("gps", "imu"):
                 # the raw samples of the paper's rows carry the sensor's bias on purpose, which a setting without bias
                 # states does not model: their IMU misfit is the ablation's point, said at INFO, not a warning
                 expected = kind == "imu" and setting.samples == "raw" and setting.bias is None
                 for message in consistency.check({kind: fits[0][kind]} if kind in fits[0] else {}):
-                    log.log(logging.INFO if expected else logging.WARNING, "%s, %s at %g Hz GPS (seed 0): %s%s",
-                            sequence.name, setting.name, rate, message,
-                            " (expected: raw samples without bias states)" if expected else "")  # fmt: skip
+                    log.log(
+                        logging.INFO if expected else logging.WARNING,
+                        "%s, %s at %g Hz GPS (seed 0): %s%s",
+                        sequence.name,
+                        setting.name,
+                        rate,
+                        message,
+                        " (expected: raw samples without bias states)" if expected else "",
+                    )
     return rows, examples
 
 

@@ -74,8 +74,6 @@ class PgoOptions:
             raise ConfigError(f"options.gps_source must be one of {', '.join(GPS_SOURCES)}, got {self.gps_source!r}")
 
 
-
-
 @dataclass(frozen=True)
 class PgoConfig:
     """The PGO ablation: which model, which sequences, GPS rates/noise/seeds, and the graph/solver settings."""

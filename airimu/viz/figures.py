@@ -125,15 +125,16 @@ def _errors(fig, cell, fused: dict, truth, palette: dict, rate) -> None:
             ax.fill_between(t, 0.0, bound, color=color, alpha=0.18, linewidth=0)
             ax.plot(t, bound, color=color, lw=0.8, ls="--")
         if truth is not None:
-            err = np.linalg.norm(pos - np.column_stack([np.interp(t, truth[0], truth[1][:, i]) for i in range(3)]),
-                                 axis=1)  # fmt: skip
+            err = np.linalg.norm(
+                pos - np.column_stack([np.interp(t, truth[0], truth[1][:, i]) for i in range(3)]), axis=1
+            )
             ax.plot(t, err, color=color, lw=1.2)
             if cov is not None:
                 label = f"  ({np.mean(err <= bound):.0%} inside 3σ)"
         ax.set_title(f"{name}{label}", fontsize=9, color=color, loc="left")
         ax.set_ylim(bottom=0)
         ax.grid(alpha=0.3)
-    for ax in axes[len(names):]:
+    for ax in axes[len(names) :]:
         ax.set_visible(False)
     for ax in axes[-ncols:]:
         ax.set_xlabel("time (s)")
@@ -146,13 +147,14 @@ def _top_down(ax, rows: list, fused: dict, truth, gps, palette: dict, rate) -> N
     if len(ranked) >= 2:
         best, worst = ranked[0], ranked[-1]
         shown = [best.setting, worst.setting]
-        labels = {best.setting: f"best: {best.setting} ({best.ate_mean_m:.3g} m)",
-                  worst.setting: f"worst: {worst.setting} ({worst.ate_mean_m:.3g} m)"}  # fmt: skip
+        labels = {
+            best.setting: f"best: {best.setting} ({best.ate_mean_m:.3g} m)",
+            worst.setting: f"worst: {worst.setting} ({worst.ate_mean_m:.3g} m)",
+        }
     if gps is not None:
         ax.plot(gps[1][:, 0], gps[1][:, 1], "o", ms=3.5, color=_rgb(colors.GPS), label="GPS fixes (fused)", zorder=1)
     if truth is not None:
-        ax.plot(truth[1][:, 0], truth[1][:, 1], color=_rgb(colors.GROUND_TRUTH), lw=2.2, label="ground truth",
-                zorder=2)  # fmt: skip
+        ax.plot(truth[1][:, 0], truth[1][:, 1], color=_rgb(colors.GROUND_TRUTH), lw=2.2, label="ground truth", zorder=2)
         ax.plot(*truth[1][0, :2], "k^", ms=8, label="start", zorder=5)
     for name in shown:
         pos = fused[name][1]

@@ -124,8 +124,13 @@ def write_recording(
         if imu is not None:
             _log_imu(rec, imu, plots)
         scene = truth.pos if truth is not None else (fused[0].pos if fused else np.zeros((1, 3)))
-        rec.log("description", rr.TextDocument(_description(application, fused, truth, dead_reckoning, gps),
-                                               media_type=rr.MediaType.MARKDOWN), static=True)  # fmt: skip
+        rec.log(
+            "description",
+            rr.TextDocument(
+                _description(application, fused, truth, dead_reckoning, gps), media_type=rr.MediaType.MARKDOWN
+            ),
+            static=True,
+        )
         span = _time_span(fused, gps)
         rec.send_blueprint(_blueprint(fused, colors.headline(names), plots, _eye(scene), span), make_active=True)
     return path
@@ -136,8 +141,10 @@ def _description(application: str, fused, truth, dead_reckoning, gps) -> str:
     lines = [f"**{application}**", ""]
     if fused:
         t = fused[0].t
-        lines.append(f"{len(t)} keyframes over {float(t[-1] - t[0]):.1f} s; ground truth: {'yes' if truth else 'no'}; "
-                     f"GPS fixes fused: {0 if gps is None else len(gps[0])}.")  # fmt: skip
+        lines.append(
+            f"{len(t)} keyframes over {float(t[-1] - t[0]):.1f} s; ground truth: {'yes' if truth else 'no'}; "
+            f"GPS fixes fused: {0 if gps is None else len(gps[0])}."
+        )
     lines += ["", "| setting | ATE vs ground truth (m) |", "|---|---|"]
     for track in fused:
         error = None if truth is None else np.sqrt(np.mean(np.sum((track.pos - _at(truth, track.t)) ** 2, axis=1)))
@@ -145,10 +152,13 @@ def _description(application: str, fused, truth, dead_reckoning, gps) -> str:
         lines.append(f"| {track.name} | {ate} |")
     if dead_reckoning:
         lines += ["", "Dead reckoning (own tab): " + ", ".join(t.name for t in dead_reckoning) + "."]
-    lines += ["", "3-D view: each setting's track carries its name (at a different stretch of each track); the "
-              "ellipsoids (3-sigma marginal position covariance at the time cursor) are shown for the headline "
-              "setting, the others' in the blueprint panel (the icon at the top right opens it). Plots: position "
-              "error against its 3-sigma bound per setting, and the IMU."]  # fmt: skip
+    lines += [
+        "",
+        "3-D view: each setting's track carries its name (at a different stretch of each track); the "
+        "ellipsoids (3-sigma marginal position covariance at the time cursor) are shown for the headline "
+        "setting, the others' in the blueprint panel (the icon at the top right opens it). Plots: position "
+        "error against its 3-sigma bound per setting, and the IMU.",
+    ]
     return "\n".join(lines)
 
 
@@ -168,24 +178,32 @@ def _log_world(rec, fused, truth, dead_reckoning, gps, palette) -> None:
         if fused:
             t = fused[0].t
             _send(rec, "world/ground_truth/now", t, rr.Points3D.columns(positions=_at(truth, t)))
-            rec.log("world/ground_truth/now", rr.Points3D.from_fields(colors=colors.GROUND_TRUTH, radii=MARKER),
-                    static=True)  # fmt: skip
+            rec.log(
+                "world/ground_truth/now", rr.Points3D.from_fields(colors=colors.GROUND_TRUTH, radii=MARKER), static=True
+            )
     if gps is not None:
         t, pos = gps
         rec.log("world/gps", rr.Points3D(pos, colors=colors.GPS, radii=rr.Radius.ui_points(3.0)), static=True)
         _send(rec, "world/gps/fix", t, rr.Points3D.columns(positions=pos))
-        fix = rr.Points3D.from_fields(colors=colors.GPS, radii=rr.Radius.ui_points(7.0), labels="GPS fix",
-                                      show_labels=False)  # fmt: skip
+        fix = rr.Points3D.from_fields(
+            colors=colors.GPS, radii=rr.Radius.ui_points(7.0), labels="GPS fix", show_labels=False
+        )
         rec.log("world/gps/fix", fix, static=True)
     for track in fused:
         entity, color = f"world/fused/{_slug(track.name)}", palette[track.name]
         _log_track(rec, entity, track, color, show_label=False)
         _send(rec, f"{entity}/now", track.t, rr.Points3D.columns(positions=track.pos))
-        rec.log(f"{entity}/now", rr.Points3D.from_fields(colors=color, radii=MARKER, labels=track.name,
-                                                          show_labels=False), static=True)  # fmt: skip
+        rec.log(
+            f"{entity}/now",
+            rr.Points3D.from_fields(colors=color, radii=MARKER, labels=track.name, show_labels=False),
+            static=True,
+        )
         at = _label_point(track, fused.index(track), len(fused))  # a name, not only a colour
-        rec.log(f"{entity}/label", rr.Points3D(at, colors=color, radii=MARKER, labels=track.name, show_labels=True),
-                static=True)  # fmt: skip
+        rec.log(
+            f"{entity}/label",
+            rr.Points3D(at, colors=color, radii=MARKER, labels=track.name, show_labels=True),
+            static=True,
+        )
         if track.pos_cov is not None:
             _send_ellipsoids(rec, f"{entity}/covariance", track, color)
     for track in dead_reckoning:
@@ -220,8 +238,14 @@ def _log_errors(rec, fused, truth, dead_reckoning, palette, plots: _Plots) -> No
                 plot.include(error)
         if track.pos_cov is not None:
             bound = SIGMA_SCALE * np.sqrt(np.clip(np.linalg.eigvalsh(track.pos_cov)[:, -1], 0.0, None))
-            _send_series(rec, f"error/sigma3/{slug}", track.t, bound[:, None], [f"{track.name}: 3σ"],
-                         [colors.lighter(color, 0.55)])  # fmt: skip
+            _send_series(
+                rec,
+                f"error/sigma3/{slug}",
+                track.t,
+                bound[:, None],
+                [f"{track.name}: 3σ"],
+                [colors.lighter(color, 0.55)],
+            )
             mine.entities.append(f"error/sigma3/{slug}")
             mine.include(bound)
         if mine.entities:
@@ -236,8 +260,9 @@ def _log_errors(rec, fused, truth, dead_reckoning, palette, plots: _Plots) -> No
         for track in dead_reckoning:
             error = np.linalg.norm(track.pos - _at(truth, track.t), axis=1)
             entity = f"error/dead_reckoning/{_slug(track.name)}"
-            _send_series(rec, entity, track.t, error[:, None], [f"{track.name} (dead reckoning)"],
-                         [palette[track.name]])  # fmt: skip
+            _send_series(
+                rec, entity, track.t, error[:, None], [f"{track.name} (dead reckoning)"], [palette[track.name]]
+            )
             drift.entities.append(entity)
             drift.include(error)
         plots.drift.append(drift)
@@ -278,8 +303,9 @@ def _send_ellipsoids(rec, entity: str, track: Track, color) -> None:
     eigvec = eigvec * np.sign(np.linalg.det(eigvec))[:, None, None]  # proper rotations
     half_sizes = SIGMA_SCALE * np.sqrt(np.clip(eigval, 0.0, None))
     quat_xyzw = np.roll(matrix_to_quat_wxyz(eigvec), -1, axis=-1)  # Rerun takes x, y, z, w
-    _send(rec, entity, track.t, rr.Ellipsoids3D.columns(centers=track.pos, half_sizes=half_sizes,
-                                                        quaternions=quat_xyzw))  # fmt: skip
+    _send(
+        rec, entity, track.t, rr.Ellipsoids3D.columns(centers=track.pos, half_sizes=half_sizes, quaternions=quat_xyzw)
+    )
     rec.log(entity, rr.Ellipsoids3D.from_fields(colors=color, line_radii=rr.Radius.ui_points(1.0)), static=True)
 
 
@@ -287,8 +313,12 @@ def _eye(pos: np.ndarray) -> rrb.EyeControls3D:
     """A camera looking down at the scene's centre from the south, about 55 degrees above the horizon."""
     lo, hi = pos.min(axis=0), pos.max(axis=0)
     centre, extent = (lo + hi) / 2, max(float(np.max(hi - lo)), 1.0)
-    return rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, look_target=centre, eye_up=(0.0, 0.0, 1.0),
-                             position=centre + extent * np.array([0.0, -0.75, 1.1]))  # fmt: skip
+    return rrb.EyeControls3D(
+        kind=rrb.Eye3DKind.Orbital,
+        look_target=centre,
+        eye_up=(0.0, 0.0, 1.0),
+        position=centre + extent * np.array([0.0, -0.75, 1.1]),
+    )
 
 
 def _blueprint(
@@ -300,20 +330,29 @@ def _blueprint(
         if t.name != headline
     }
     scene = rrb.Spatial3DView(
-        name="trajectories (m)", origin="/world", contents=["+ /world/**", "- /world/dead_reckoning/**"],
-        overrides=hidden, background=VIEW_BACKGROUND, eye_controls=eye,
-    )  # fmt: skip
+        name="trajectories (m)",
+        origin="/world",
+        contents=["+ /world/**", "- /world/dead_reckoning/**"],
+        overrides=hidden,
+        background=VIEW_BACKGROUND,
+        eye_controls=eye,
+    )
     drift_scene = rrb.Spatial3DView(
-        name="dead reckoning (m)", origin="/world", background=VIEW_BACKGROUND, eye_controls=eye,
+        name="dead reckoning (m)",
+        origin="/world",
+        background=VIEW_BACKGROUND,
+        eye_controls=eye,
         contents=["+ /world/ground_truth", "+ /world/dead_reckoning/**"],
-    )  # fmt: skip
-    left = rrb.Tabs(scene, rrb.Vertical(drift_scene, *map(_view, plots.drift), name="dead reckoning"),
-                    active_tab=0)  # fmt: skip
+    )
+    left = rrb.Tabs(scene, rrb.Vertical(drift_scene, *map(_view, plots.drift), name="dead reckoning"), active_tab=0)
     tabs = []
     if plots.error:
         overview, per_setting = plots.error[0], plots.error[1:]
-        tabs.append(rrb.Vertical(_view(overview), rrb.Grid(*map(_view, per_setting)), row_shares=[1, 2],
-                                 name="position error (m)"))  # fmt: skip
+        tabs.append(
+            rrb.Vertical(
+                _view(overview), rrb.Grid(*map(_view, per_setting)), row_shares=[1, 2], name="position error (m)"
+            )
+        )
     units = {"gyro": "gyro (rad/s)", "acc": "acc (m/s²)"}
     tabs += [rrb.Vertical(*map(_view, views), name=units[sensor]) for sensor, views in plots.sensors.items()]
     about = rrb.TextDocumentView(origin="/description", name="about this recording")
@@ -335,21 +374,36 @@ def _view(plot: _Plot) -> rrb.TimeSeriesView:
     span = max(hi - lo, 1e-9)
     axis = rrb.ScalarAxis(range=(lo - 0.05 * span, hi + LEGEND_HEADROOM * span))
     return rrb.TimeSeriesView(
-        name=plot.title, origin="/", contents=[f"+ /{e}" for e in plot.entities], axis_y=axis,
+        name=plot.title,
+        origin="/",
+        contents=[f"+ /{e}" for e in plot.entities],
+        axis_y=axis,
         plot_legend=rrb.PlotLegend(rrb.Corner2D.LeftTop),
-    )  # fmt: skip
+    )
 
 
 # (entity, metrics.jsonl keys, series names, colours, view title, legend corner: away from the curves' ends)
 TRAINING_SERIES = (
-    ("loss", ("train_loss", "val_loss"), ("train", "validation"), (colors.TRAIN, colors.VALIDATION), "loss",
-     "RightTop"),
+    (
+        "loss",
+        ("train_loss", "val_loss"),
+        ("train", "validation"),
+        (colors.TRAIN, colors.VALIDATION),
+        "loss",
+        "RightTop",
+    ),
     ("val/roe_deg", ("val_roe_deg",), ("validation ROE",), (colors.VALIDATION,), "validation ROE (deg)", "RightTop"),
-    ("val/rpe_rmse_m", ("val_rpe_rmse_m",), ("validation RPE RMSE",), (colors.VALIDATION,),
-     "validation RPE RMSE (m)", "RightTop"),
+    (
+        "val/rpe_rmse_m",
+        ("val_rpe_rmse_m",),
+        ("validation RPE RMSE",),
+        (colors.VALIDATION,),
+        "validation RPE RMSE (m)",
+        "RightTop",
+    ),
     ("lr", ("lr",), ("learning rate",), (colors.TRAIN,), "learning rate", "RightTop"),
     ("seconds", ("seconds",), ("wall time",), (colors.TRAIN,), "time since the start (s)", "LeftTop"),
-)  # fmt: skip
+)
 
 
 def write_training_recording(folder: str | Path, history: list[EpochLog]) -> Path:
@@ -368,35 +422,62 @@ def write_training_recording(folder: str | Path, history: list[EpochLog]) -> Pat
             if not history or not all(key in history[0] for key in keys):
                 continue
             values = np.array([[entry.get(key, np.nan) for key in keys] for entry in history], dtype=float)
-            rec.log(entity, rr.SeriesLines(names=list(names), colors=list(rgb), widths=[2.0] * len(names)),
-                    static=True)  # fmt: skip
-            rec.log(entity, rr.SeriesPoints(names=list(names), colors=list(rgb), marker_sizes=[3.0] * len(names)),
-                    static=True)  # fmt: skip
-            rec.send_columns(entity, indexes=[rr.TimeColumn("epoch", sequence=epochs)],
-                             columns=rr.Scalars.columns(scalars=values if len(keys) > 1 else values[:, 0]))  # fmt: skip
-            views.append(rrb.TimeSeriesView(name=title, origin=f"/{entity}", axis_x=rrb.TimeAxis(view_range=margin),
-                                            plot_legend=rrb.PlotLegend(rrb.Corner2D[corner])))  # fmt: skip
+            rec.log(entity, rr.SeriesLines(names=list(names), colors=list(rgb), widths=[2.0] * len(names)), static=True)
+            rec.log(
+                entity,
+                rr.SeriesPoints(names=list(names), colors=list(rgb), marker_sizes=[3.0] * len(names)),
+                static=True,
+            )
+            rec.send_columns(
+                entity,
+                indexes=[rr.TimeColumn("epoch", sequence=epochs)],
+                columns=rr.Scalars.columns(scalars=values if len(keys) > 1 else values[:, 0]),
+            )
+            views.append(
+                rrb.TimeSeriesView(
+                    name=title,
+                    origin=f"/{entity}",
+                    axis_x=rrb.TimeAxis(view_range=margin),
+                    plot_legend=rrb.PlotLegend(rrb.Corner2D[corner]),
+                )
+            )
         if history and all("val_loss" in entry for entry in history):  # the epoch best.pt holds, marked
             best = min(range(len(history)), key=lambda i: history[i]["val_loss"])
-            rec.log("loss/best", rr.SeriesPoints(names=["best epoch (best.pt)"], colors=[colors.GROUND_TRUTH],
-                                                 markers=["diamond"], marker_sizes=[8.0]), static=True)  # fmt: skip
+            rec.log(
+                "loss/best",
+                rr.SeriesPoints(
+                    names=["best epoch (best.pt)"],
+                    colors=[colors.GROUND_TRUTH],
+                    markers=["diamond"],
+                    marker_sizes=[8.0],
+                ),
+                static=True,
+            )
             rec.set_time("epoch", sequence=int(epochs[best]))
             rec.log("loss/best", rr.Scalars(history[best]["val_loss"]))
-            summary = (f"**training**\n\n{len(history)} epochs; best validation loss {history[best]['val_loss']:.5g} "
-                       f"at epoch {int(epochs[best])} (1 = the first): the weights best.pt holds.")  # fmt: skip
+            summary = (
+                f"**training**\n\n{len(history)} epochs; best validation loss {history[best]['val_loss']:.5g} "
+                f"at epoch {int(epochs[best])} (1 = the first): the weights best.pt holds."
+            )
             stop = _early_stop(Path(folder), history, best)
             if stop is not None:  # the epoch the run stopped at, marked beside the best one
-                marker = rr.SeriesPoints(names=["early stop"], colors=[colors.VALIDATION], markers=["cross"],
-                                         marker_sizes=[8.0])  # fmt: skip
+                marker = rr.SeriesPoints(
+                    names=["early stop"], colors=[colors.VALIDATION], markers=["cross"], marker_sizes=[8.0]
+                )
                 rec.log("loss/early_stop", marker, static=True)
                 rec.set_time("epoch", sequence=int(epochs[-1]))
                 rec.log("loss/early_stop", rr.Scalars(history[-1]["val_loss"]))
-                summary += (f" Stopped early after epoch {int(epochs[-1])} of {stop[0]}: no lower validation loss "
-                            f"in {stop[1]} epochs (train.early_stop_patience).")  # fmt: skip
+                summary += (
+                    f" Stopped early after epoch {int(epochs[-1])} of {stop[0]}: no lower validation loss "
+                    f"in {stop[1]} epochs (train.early_stop_patience)."
+                )
             rec.log("description", rr.TextDocument(summary, media_type=rr.MediaType.MARKDOWN), static=True)
             views.insert(0, rrb.TextDocumentView(origin="/description", name="about this run"))
-        panels = (rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"),
-                  rrb.TimePanel(state="collapsed", timeline="epoch"))  # fmt: skip
+        panels = (
+            rrb.BlueprintPanel(state="collapsed"),
+            rrb.SelectionPanel(state="collapsed"),
+            rrb.TimePanel(state="collapsed", timeline="epoch"),
+        )
         blueprint = rrb.Blueprint(rrb.Grid(*views), *panels, auto_views=False)
         rec.send_blueprint(blueprint, make_active=True)
     return path

@@ -122,9 +122,15 @@ def check_options(dataset: str, options: dict, where: str = "options") -> dict:
 
 # numeric reader and simulator options that must be positive and finite (their unit)
 POSITIVE_OPTIONS = {
-    "duration_s": "s", "rate_hz": "Hz", "gps_rate_hz": "Hz", "gps_sigma_m": "m", "gps_sigma": "m",
-    "gravity": "m/s^2, the magnitude", "vel_window_s": "s", "max_gt_distance_s": "s",
-}  # fmt: skip
+    "duration_s": "s",
+    "rate_hz": "Hz",
+    "gps_rate_hz": "Hz",
+    "gps_sigma_m": "m",
+    "gps_sigma": "m",
+    "gravity": "m/s^2, the magnitude",
+    "vel_window_s": "s",
+    "max_gt_distance_s": "s",
+}
 
 
 def _choices() -> dict[str, tuple]:
@@ -134,11 +140,19 @@ def _choices() -> dict[str, tuple]:
     from learned_imu.datasets.simulator import GRADES, PROFILES
 
     return {
-        "on_gap": (*_checks.ON_GAP, SPLIT), "on_duplicate": _checks.ON_DUPLICATE, "on_backward": _checks.ON_BACKWARD,
-        "gps_frame": kitti_raw.GPS_FRAMES, "stamp": rosbag.STAMPS, "quat_order": _rotations.QUAT_ORDERS,
-        "time_unit": tuple(csv.TIME_UNITS), "gyro_unit": tuple(csv.GYRO_UNITS), "acc_unit": tuple(csv.ACC_UNITS),
-        "profile": PROFILES, "grade": tuple(GRADES), "imu": tuple(tumvi.IMU_FILES),
-    }  # fmt: skip
+        "on_gap": (*_checks.ON_GAP, SPLIT),
+        "on_duplicate": _checks.ON_DUPLICATE,
+        "on_backward": _checks.ON_BACKWARD,
+        "gps_frame": kitti_raw.GPS_FRAMES,
+        "stamp": rosbag.STAMPS,
+        "quat_order": _rotations.QUAT_ORDERS,
+        "time_unit": tuple(csv.TIME_UNITS),
+        "gyro_unit": tuple(csv.GYRO_UNITS),
+        "acc_unit": tuple(csv.ACC_UNITS),
+        "profile": PROFILES,
+        "grade": tuple(GRADES),
+        "imu": tuple(tumvi.IMU_FILES),
+    }
 
 
 def _check_size(value, where: str) -> None:

@@ -128,8 +128,12 @@ class GtSamples:
             infinite |= np.isinf(vel).any(axis=1)
         if infinite.any():
             row = int(np.argmax(infinite))
-            raise DataError(source, "gt", f"ground-truth sample {row} (t = {float(t[row])!r}) holds an infinite value; "
-                            f"NaN marks a missing sample, inf does not ({int(infinite.sum())} such sample(s))")
+            raise DataError(
+                source,
+                "gt",
+                f"ground-truth sample {row} (t = {float(t[row])!r}) holds an infinite value; "
+                f"NaN marks a missing sample, inf does not ({int(infinite.sum())} such sample(s))",
+            )
         valid = np.isfinite(quat).all(axis=1) & np.isfinite(pos).all(axis=1)
         if vel is not None:
             valid &= np.isfinite(vel).all(axis=1)
@@ -277,9 +281,19 @@ def build_sequence(
     )
     if truth is not None and checks.check_frame:
         _checks.check_frame(
-            t, gyro, acc, truth.rot, truth.valid, gravity, source, gt.source, truth.vel, frame_interval_s,
-            pos=truth.pos, vel_given=gt.vel is not None,
-        )  # fmt: skip
+            t,
+            gyro,
+            acc,
+            truth.rot,
+            truth.valid,
+            gravity,
+            source,
+            gt.source,
+            truth.vel,
+            frame_interval_s,
+            pos=truth.pos,
+            vel_given=gt.vel is not None,
+        )
     return _make(name, source, t, gyro, acc, gravity, truth, gps, slice(None), gps_source)
 
 
@@ -312,10 +326,11 @@ def _make(name, source, t, gyro, acc, gravity, truth, gps, part: slice, gps_sour
         inside = (gps.t >= t[0]) & (gps.t <= t[-1])
         if len(gps.t) and not inside.any():
             raise DataError(
-                gps_source or source, "gps",
+                gps_source or source,
+                "gps",
                 f"none of the {len(gps.t)} GPS fixes, [{float(gps.t[0])!r}, {float(gps.t[-1])!r}] s, lies within the "
                 f"IMU's time span [{float(t[0])!r}, {float(t[-1])!r}] s (another clock or time unit?)",
-            )  # fmt: skip
+            )
         gps = gps[inside]
     return ImuSequence(
         name=name, t=t, gyro=gyro[part], acc=acc[part], gravity=gravity.copy(), gt=truth, gps=gps, source=str(source)

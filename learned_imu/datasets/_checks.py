@@ -120,17 +120,22 @@ def check_timestamps(
     if (steps < 0).any():
         row = int(np.argmax(steps < 0)) + 1
         raise DataError(
-            source, field, f"time goes backwards: {float(t[row])!r} after {float(t[row - 1])!r}{sample(row)}",
+            source,
+            field,
+            f"time goes backwards: {float(t[row])!r} after {float(t[row - 1])!r}{sample(row)}",
             line=line(row),
-        )  # fmt: skip
+        )
     dup = steps == 0
     if dup.any():
         row = int(np.argmax(dup)) + 1
         if on_duplicate == "error":
             raise DataError(
-                source, field, f"duplicated time stamp {float(t[row])!r}{sample(row)}: {int(dup.sum())} repeat(s) in "
-                "the file; pass on_duplicate='drop' to keep the first of each", line=line(row),
-            )  # fmt: skip
+                source,
+                field,
+                f"duplicated time stamp {float(t[row])!r}{sample(row)}: {int(dup.sum())} repeat(s) in "
+                "the file; pass on_duplicate='drop' to keep the first of each",
+                line=line(row),
+            )
         logger.warning("%s: dropping %d samples with duplicated time stamps", source, int(dup.sum()))
     return np.flatnonzero(np.concatenate([[True], ~dup]))
 
@@ -142,10 +147,11 @@ def check_units(acc: np.ndarray, gyro: np.ndarray, source: object) -> None:
     low, high = ACC_PLAUSIBLE_MS2
     if not low < acc_norm < high and low < gyro_norm < high:  # a sustained 4-25 rad/s is no IMU's median rate
         raise DataError(
-            source, "gyro/acc",
+            source,
+            "gyro/acc",
             f"the gyro columns hold the specific force (median |gyro| = {gyro_norm:.3g}, |acc| = {acc_norm:.3g}; "
             "gravity is about 9.81 m/s^2): gyro and acc columns swapped?",
-        )  # fmt: skip
+        )
     if ACC_IN_G[0] < acc_norm < ACC_IN_G[1]:
         raise DataError(
             source,
@@ -284,9 +290,19 @@ def frame_score(t, gyro, acc, rot, valid, gravity, vel=None, interval_s: float =
 
 
 def check_frame(
-    t, gyro, acc, rot, valid, gravity, source: object, gt_source: object = None, vel=None,
-    interval_s: float = GYRO_INTERVAL_S, pos=None, vel_given: bool = False,
-) -> FrameScore | None:  # fmt: skip
+    t,
+    gyro,
+    acc,
+    rot,
+    valid,
+    gravity,
+    source: object,
+    gt_source: object = None,
+    vel=None,
+    interval_s: float = GYRO_INTERVAL_S,
+    pos=None,
+    vel_given: bool = False,
+) -> FrameScore | None:
     """Frame self-check of ground truth against the IMU; raises a DataError naming the misread convention. With
     ``pos`` (N, 3) and ``vel`` the motion self-check (``check_motion``) runs too: after a pass, and before a failure
     that no rotation or IMU-unit mistake explains (positions in mm also fail the mean-acceleration fact).
@@ -370,11 +386,19 @@ def _motion_failure(t, acc, rot, pos, vel, valid, gravity, gt_source, vel_given)
     world = np.where(valid[:, None], np.einsum("nij,nj->ni", rot, acc) + gravity, 0.0)
     integral = np.concatenate([np.zeros((1, 3)), np.cumsum(world * dt, axis=0)])
     # what a constant body-frame acc bias b adds to the velocity change over [i, j]: A b with A the integral of R dt
-    rot_integral = np.concatenate([np.zeros((1, 3, 3)), np.cumsum(np.where(valid[:, None, None], rot, 0.0)
-                                                                  * dt[:, :, None], axis=0)])  # fmt: skip
+    rot_integral = np.concatenate(
+        [np.zeros((1, 3, 3)), np.cumsum(np.where(valid[:, None, None], rot, 0.0) * dt[:, :, None], axis=0)]
+    )
     bias_effect = rot_integral[j] - rot_integral[i]  # (intervals, 3 axes, 3 unknowns)
-    checks = [("gt.vel" if vel_given else "gt.pos", "velocity change", vel[j] - vel[i], integral[j] - integral[i],
-               bias_effect)]  # fmt: skip
+    checks = [
+        (
+            "gt.vel" if vel_given else "gt.pos",
+            "velocity change",
+            vel[j] - vel[i],
+            integral[j] - integral[i],
+            bias_effect,
+        )
+    ]
     if vel_given:
         v_integral = np.concatenate([np.zeros((1, 3)), np.cumsum(np.where(valid[:, None], vel, 0.0) * dt, axis=0)])
         checks.append(("gt.pos", "displacement", pos[j] - pos[i], v_integral[j] - v_integral[i], None))
@@ -416,8 +440,12 @@ def _without(basis: np.ndarray, x: np.ndarray) -> np.ndarray:
 
 
 def _scale_hint(scale: float) -> str:
-    for factor, hint in ((-1.0, "negated (sign flipped, or another world frame)"), (1000.0, "in mm, not m"),
-                         (100.0, "in cm, not m"), (0.001, "in km, not m")):  # fmt: skip
+    for factor, hint in (
+        (-1.0, "negated (sign flipped, or another world frame)"),
+        (1000.0, "in mm, not m"),
+        (100.0, "in cm, not m"),
+        (0.001, "in km, not m"),
+    ):
         if 0.7 < scale / factor < 1.4:
             return f": {hint}?"
     return ""

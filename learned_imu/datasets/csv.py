@@ -44,8 +44,10 @@ def _keys(keys: Sequence[ColumnKey] | None, count: int, option: str) -> list[Col
     if keys is None:
         return None
     if isinstance(keys, str | int) or len(keys) != count:
-        raise ConfigError(f"reader option {option!r}: expected {count} columns (header names or 0-based indices, "
-                          f"e.g. {option}=a,b,c on the command line), got {keys!r}")  # fmt: skip
+        raise ConfigError(
+            f"reader option {option!r}: expected {count} columns (header names or 0-based indices, "
+            f"e.g. {option}=a,b,c on the command line), got {keys!r}"
+        )
     return list(keys)
 
 
@@ -59,8 +61,11 @@ def _check_time_unit(t: np.ndarray, path: Path, time_unit: str) -> None:
     rate = 1.0 / float(np.median(np.diff(t)))
     if IMU_RATE_HZ[0] <= rate <= IMU_RATE_HZ[1]:
         return
-    fits = [unit for unit, scale in TIME_UNITS.items()
-            if IMU_RATE_HZ[0] <= rate * TIME_UNITS[time_unit] / scale <= IMU_RATE_HZ[1]]  # fmt: skip
+    fits = [
+        unit
+        for unit, scale in TIME_UNITS.items()
+        if IMU_RATE_HZ[0] <= rate * TIME_UNITS[time_unit] / scale <= IMU_RATE_HZ[1]
+    ]
     hint = ""
     if fits:
         hint = f"; with time_unit={fits[0]!r} it would be {rate * TIME_UNITS[time_unit] / TIME_UNITS[fits[0]]:.4g} Hz"
@@ -124,8 +129,13 @@ def read_csv(
     imu = np.concatenate([table.columns(gyro_keys, "gyro") * w_scale, table.columns(acc_keys, "acc") * a_scale], 1)
     table.require_finite(imu, "gyro/acc")
     forward = forward_rows(t, path, "time", on_backward, table.line_of)
-    kept = check_timestamps(t[forward] * t_scale, path, "time", on_duplicate=checks.on_duplicate,
-                            line_of=lambda row: table.line_of(int(forward[row])))  # fmt: skip
+    kept = check_timestamps(
+        t[forward] * t_scale,
+        path,
+        "time",
+        on_duplicate=checks.on_duplicate,
+        line_of=lambda row: table.line_of(int(forward[row])),
+    )
     keep = forward[kept]
     t = t[keep] * t_scale
     if checks.check_units:

@@ -82,12 +82,23 @@ def read_euroc(
             gt = read_euroc_ground_truth(gt_path, on_duplicate=checks.on_duplicate)
         elif (root / GT_DIR).is_dir():
             there = sorted(p.name for p in (root / GT_DIR).iterdir())
-            log.warning("%s: no ground truth read: the folder holds %s, not %s (pass gt_file=...)", root / GT_DIR,
-                        there or "nothing", " or ".join(f.name for f in GT_FILES))  # fmt: skip
+            log.warning(
+                "%s: no ground truth read: the folder holds %s, not %s (pass gt_file=...)",
+                root / GT_DIR,
+                there or "nothing",
+                " or ".join(f.name for f in GT_FILES),
+            )
     return build_sequence(
-        root.name, imu_path, imu.t, imu.gyro, imu.acc, np.array([0.0, 0.0, -gravity]), gt=gt, checks=checks,
+        root.name,
+        imu_path,
+        imu.t,
+        imu.gyro,
+        imu.acc,
+        np.array([0.0, 0.0, -gravity]),
+        gt=gt,
+        checks=checks,
         line_of=imu.line_of,
-    )  # fmt: skip
+    )
 
 
 @dataclass(frozen=True, eq=False)

@@ -57,7 +57,7 @@ def read_gps_csv(
 
 
 def gps_file_layout(path: str | Path) -> str:
-    """"lat/lon" or "x/y/z": which position columns a GPS CSV has (``read_gps_csv``'s rule)."""
+    """ "lat/lon" or "x/y/z": which position columns a GPS CSV has (``read_gps_csv``'s rule)."""
     names = {n.strip().lower() for n in read_table(Path(path), delimiter=",", min_columns=4, field="gps").header}
     return "lat/lon" if {"lat", "lon", "alt"} <= names else "x/y/z"
 

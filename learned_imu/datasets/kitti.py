@@ -66,8 +66,13 @@ def read_kitti(
     raw = table.columns(IMU_COLUMNS if table.header else range(len(IMU_COLUMNS)), "imu")
     table.require_finite(raw, "imu")
     rows = np.arange(raw.shape[0])[1 if skip_first else 0 :]
-    unique = check_timestamps(raw[rows, 0], imu_path, "Time", on_duplicate=checks.on_duplicate,
-                              line_of=lambda row: table.line_of(int(rows[row])))  # fmt: skip
+    unique = check_timestamps(
+        raw[rows, 0],
+        imu_path,
+        "Time",
+        on_duplicate=checks.on_duplicate,
+        line_of=lambda row: table.line_of(int(rows[row])),
+    )
     keep = rows[unique]
     t, acc, gyro = raw[keep, 0], raw[keep, 2:5], raw[keep, 5:8]
     gps = read_gps(_locate(path, gps_file), gps_sigma) if gps_file is not None else None

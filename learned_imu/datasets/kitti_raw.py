@@ -156,9 +156,11 @@ def _fit_gps_frame(gps: GpsFixes, gt: GtSamples, source: Path) -> GpsFixes:
         rms = float(np.sqrt(np.mean((mapped[:, axis] - truth) ** 2)))
         if not rms <= MAX_GPS_FIT_RMS_M:
             raise DataError(
-                source, "XYZ"[axis], f"a scale and offset leave {rms:.3g} m rms against the drive's ground truth "
+                source,
+                "XYZ"[axis],
+                f"a scale and offset leave {rms:.3g} m rms against the drive's ground truth "
                 f"(at most {MAX_GPS_FIT_RMS_M} m): these fixes do not belong to this drive",
-            )  # fmt: skip
+            )
     return GpsFixes(t, mapped, gps.sigma[inside])
 
 

@@ -87,8 +87,11 @@ def read_rosbag(
             gt = None
             candidates = sorted(t for t, m in types.items() if m in (ODOMETRY_TYPE, *POSE_TYPES))
             if gt_topic is None and candidates:
-                logger.warning("%s: read without ground truth, though the bag has pose topics %s (pass gt_topic=...)",
-                               path, candidates)  # fmt: skip
+                logger.warning(
+                    "%s: read without ground truth, though the bag has pose topics %s (pass gt_topic=...)",
+                    path,
+                    candidates,
+                )
             if gt_topic is not None:
                 kind = _require_topic(path, types, gt_topic, (ODOMETRY_TYPE, *POSE_TYPES), "gt_topic")
                 row = _odometry_row if kind == ODOMETRY_TYPE else _pose_row

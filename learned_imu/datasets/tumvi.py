@@ -81,9 +81,11 @@ def read_tumvi(
         raise DataError(root, "max_gt_distance_s", f"expected seconds in (0, 1], got {max_gt_distance_s!r}")
     imu_path = resolve(root, imu_file or IMU_FILES[imu])
     raw_hint = imu == "raw" and imu_file is None
-    samples = read_asl_imu(imu_path, checks.on_duplicate,
-                           "the official download has no raw csv: pass imu_file=... to a raw export" if raw_hint
-                           else "pass imu_file=...")  # fmt: skip
+    samples = read_asl_imu(
+        imu_path,
+        checks.on_duplicate,
+        "the official download has no raw csv: pass imu_file=... to a raw export" if raw_hint else "pass imu_file=...",
+    )
     gt = None
     if ground_truth:
         gt_path = resolve(root, gt_file or GT_FILE)
@@ -94,6 +96,14 @@ def read_tumvi(
     if checks.vel_window_s == VEL_WINDOW_S:
         checks = replace(checks, vel_window_s=TUMVI_VEL_WINDOW_S)
     return build_sequence(
-        root.name, imu_path, samples.t, samples.gyro, samples.acc, np.array([0.0, 0.0, -gravity]), gt=gt,
-        checks=checks, line_of=samples.line_of, max_gt_distance_s=float(max_gt_distance_s),
-    )  # fmt: skip
+        root.name,
+        imu_path,
+        samples.t,
+        samples.gyro,
+        samples.acc,
+        np.array([0.0, 0.0, -gravity]),
+        gt=gt,
+        checks=checks,
+        line_of=samples.line_of,
+        max_gt_distance_s=float(max_gt_distance_s),
+    )

@@ -165,14 +165,18 @@ PAPER_TABLES = (
     ("Gyroscope integration over the interval: ROE (deg) and RMSE (deg)", ("roe_deg", "roe_rmse_deg")),
     ("Integration over evaluation.frames samples: R-RMSE (deg) and P-RMSE (m)", ("roe_rmse_10f_deg", "rpe_rmse_10f_m")),
     ("P-RMSE over the interval (m), the learned-inertial-odometry table", ("rpe_rmse_m",)),
-    ("Covariance calibration on the evaluated windows: NSE rotation, position, velocity (1 = calibrated)",
-     ("nse_rot", "nse_pos", "nse_vel")),
-)  # fmt: skip
+    (
+        "Covariance calibration on the evaluated windows: NSE rotation, position, velocity (1 = calibrated)",
+        ("nse_rot", "nse_pos", "nse_vel"),
+    ),
+)
 KITTI_TABLES = (
-    ("KITTI: ROE (deg) and RPE (m) over the interval (the paper's: 10 Hz sync stream; ours: 100 Hz OXTS)",
-     ("roe_deg", "rpe_m")),
+    (
+        "KITTI: ROE (deg) and RPE (m) over the interval (the paper's: 10 Hz sync stream; ours: 100 Hz OXTS)",
+        ("roe_deg", "rpe_m"),
+    ),
     PAPER_TABLES[-1],
-)  # fmt: skip
+)
 TUMVI_TABLES = (("TUM-VI: ROE (deg) and RPE (m) over the interval", ("roe_deg", "rpe_m")), PAPER_TABLES[-1])
 
 
@@ -306,9 +310,18 @@ def score(name: str, sequence: ImuSequence, gyro, acc, config: ExperimentConfig,
         short_rot, short_pos = short.roe_rmse_deg, short.rpe_rmse_m
     nse = calibration(model, sequence, config) if model is not None else np.full(3, np.nan)
     return AblationRow(
-        name, sequence.name, result.roe_deg, result.roe_rmse_deg, result.rpe_m, result.rpe_rmse_m, short_rot,
-        short_pos, result.ate_m, *map(float, nse), config.train.seed if model is not None else None,
-    )  # fmt: skip
+        name,
+        sequence.name,
+        result.roe_deg,
+        result.roe_rmse_deg,
+        result.rpe_m,
+        result.rpe_rmse_m,
+        short_rot,
+        short_pos,
+        result.ate_m,
+        *map(float, nse),
+        config.train.seed if model is not None else None,
+    )
 
 
 def calibration(model: AirImuNet, sequence: ImuSequence, config: ExperimentConfig) -> np.ndarray:
@@ -332,12 +345,19 @@ def write_rows(rows: list[AblationRow], json_path: str | Path | None = None, csv
     tables = paper_tables(rows)
     cells = [{"table": t.title, **dataclasses.asdict(c)} for t in tables for c in t.cells]
     if json_path:
-        write_json_atomic(json_path, _nulls({
-            "rows": [dataclasses.asdict(r) for r in rows],
-            "summary": [dataclasses.asdict(s) for s in summarise(rows)],
-            "paper_tables": [{"title": t.title, "fields": list(t.fields),
-                              "cells": [dataclasses.asdict(c) for c in t.cells]} for t in tables],
-        }))  # fmt: skip
+        write_json_atomic(
+            json_path,
+            _nulls(
+                {
+                    "rows": [dataclasses.asdict(r) for r in rows],
+                    "summary": [dataclasses.asdict(s) for s in summarise(rows)],
+                    "paper_tables": [
+                        {"title": t.title, "fields": list(t.fields), "cells": [dataclasses.asdict(c) for c in t.cells]}
+                        for t in tables
+                    ],
+                }
+            ),
+        )
     if csv_path:
         csv_path = Path(csv_path)
         write_csv_atomic(csv_path, _nulls([dataclasses.asdict(r) for r in rows]))

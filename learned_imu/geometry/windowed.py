@@ -141,17 +141,29 @@ def preintegrate_windows(
         coupled = known is None
         noise = _noise_terms(lever, frame.to(d), h.to(d), wide, gyro_cov, acc_cov, coupled)
         window = _window_sums(noise, a, b)  # (..., 6, 3, 3, P): S_b - S_a
-        cov = _window_covariance(window, rot_ab.to(d), f_a.to(d), r_b.to(d), wide.vel[..., b], wide.pos[..., b],
-                                 wide.time[..., b], coupled, diagonal)  # fmt: skip
+        cov = _window_covariance(
+            window,
+            rot_ab.to(d),
+            f_a.to(d),
+            r_b.to(d),
+            wide.vel[..., b],
+            wide.pos[..., b],
+            wide.time[..., b],
+            coupled,
+            diagonal,
+        )
 
     def out(x: torch.Tensor, item_ndim: int) -> torch.Tensor:
         return _samples_first(x, item_ndim).unflatten(-1 - item_ndim, shape)
 
     return Preintegrated(
-        rot=out(rot_ab, 2), vel=out(vel_ab, 1), pos=out(pos_ab, 1), dt=span[..., 0, :].unflatten(-1, shape),
+        rot=out(rot_ab, 2),
+        vel=out(vel_ab, 1),
+        pos=out(pos_ab, 1),
+        dt=span[..., 0, :].unflatten(-1, shape),
         cov=None if cov is None or diagonal else out(cov, 2),
         variance=out(cov, 1) if cov is not None and diagonal else None,
-    )  # fmt: skip
+    )
 
 
 class _Prefix(tuple):

@@ -14,8 +14,8 @@ dict of tensors, numbers, strings, lists and dicts only, so the safe loader acce
 - ``written_by``: the versions of ``airimu`` and ``torch`` that wrote the file (a file from a newer toolkit is
   refused naming the version it needs).
 
-Versions: 1 (written before 2026-12-02) has no ``written_by``, and ``trained_on`` only in files written after it
-was introduced; both read as absent. 2 always writes both keys.
+Versions: 1 has no ``written_by``, and ``trained_on`` only in its later files; both read as absent
+(tests/learned_imu/network/test_checkpoint.py). 2 always writes both keys.
 """
 
 from __future__ import annotations
@@ -59,10 +59,14 @@ class BestEpoch:
         own = {"epoch", "val_loss", "seconds", *CALIBRATION_FIELDS}
         scales = data.get("noise_scales")
         return cls(
-            epoch=int(data["epoch"]), val_loss=float(data["val_loss"]), seconds=float(data.get("seconds", math.nan)),
-            metrics={k: v for k, v in data.items() if k not in own}, calibrated=bool(data.get("calibrated", False)),
-            calibration_nll=data.get("calibration_nll"), noise_scales=None if scales is None else tuple(scales),
-        )  # fmt: skip
+            epoch=int(data["epoch"]),
+            val_loss=float(data["val_loss"]),
+            seconds=float(data.get("seconds", math.nan)),
+            metrics={k: v for k, v in data.items() if k not in own},
+            calibrated=bool(data.get("calibrated", False)),
+            calibration_nll=data.get("calibration_nll"),
+            noise_scales=None if scales is None else tuple(scales),
+        )
 
     def to_dict(self) -> dict:
         """Flat and ``weights_only``-loadable: the metrics, the three fields, and the calibration keys once set."""
@@ -162,8 +166,10 @@ def load_checkpoint(path: str | Path) -> Checkpoint:
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as error:  # torch's message goes on to advise weights_only=False: not repeated
-        problem = ("torch's safe loader refuses what it holds (objects other than tensors and plain data, or no "
-                   "pickle at all); nothing was unpickled")  # fmt: skip
+        problem = (
+            "torch's safe loader refuses what it holds (objects other than tensors and plain data, or no "
+            "pickle at all); nothing was unpickled"
+        )
         raise DataError(path, "file", f"not a readable torch checkpoint: {problem}") from error
     except (RuntimeError, OSError, zipfile.BadZipFile, EOFError, ValueError, KeyError, IndexError) as error:
         # KeyError / IndexError: what the legacy (non-zip) reader raises on a text or other non-checkpoint file
@@ -177,9 +183,11 @@ def load_checkpoint(path: str | Path) -> Checkpoint:
         writer = written_by.get("airimu", "unknown") if isinstance(written_by, dict) else "unknown"
         readable = ", ".join(map(str, READABLE))
         raise DataError(
-            path, "version", f"checkpoint version {version!r} (written by airimu {writer}); this code "
+            path,
+            "version",
+            f"checkpoint version {version!r} (written by airimu {writer}); this code "
             f"(airimu {_software()['airimu']}) reads versions {readable}: upgrade airimu to read it",
-        )  # fmt: skip
+        )
     missing = [key for key in _REQUIRED if key not in payload]
     if missing:
         raise DataError(path, missing[0], "missing from the checkpoint")

@@ -77,9 +77,17 @@ class Chunks:
         (B, M, K, 9), the covariance's diagonal, when densities (B, N, 3) are given (float64); only the windows of
         ``mask`` count."""
         pre = preintegrate_windows(
-            out.gyro, out.acc, self.dt, self.starts, self.length, self.every, gyro_cov, acc_cov, self.rotation,
+            out.gyro,
+            out.acc,
+            self.dt,
+            self.starts,
+            self.length,
+            self.every,
+            gyro_cov,
+            acc_cov,
+            self.rotation,
             diagonal=True,
-        )  # fmt: skip
+        )
         return errors_against(pre, self.truth), pre.variance
 
     def to(self, device: str | torch.device) -> Chunks:
@@ -105,8 +113,19 @@ def _apply(op):
         truth = Preintegrated(op(c.truth.rot), op(c.truth.vel), op(c.truth.pos), op(c.truth.dt))
         gravity_imu = None if c.gravity_imu is None else op(c.gravity_imu)
         rotation = None if c.rotation is None else op(c.rotation)
-        return Chunks(op(c.gyro), op(c.acc), op(c.dt), truth, op(c.valid), starts, c.length, c.every, gravity_imu,
-                      c.context, rotation)  # fmt: skip
+        return Chunks(
+            op(c.gyro),
+            op(c.acc),
+            op(c.dt),
+            truth,
+            op(c.valid),
+            starts,
+            c.length,
+            c.every,
+            gravity_imu,
+            c.context,
+            rotation,
+        )
 
     return apply
 
@@ -181,6 +200,7 @@ def make_chunks(
     offsets, starts, valid = offsets[keep], starts[keep], valid[keep]
     fed = offsets[:, None] + np.arange(-context, chunk)
     truth = _truth_deltas(sequence, starts, length, every, valid)
+
     def t(x):
         return torch.as_tensor(x, dtype=dtype)
 
@@ -232,7 +252,11 @@ def concat_chunks(parts: list[Chunks]) -> Chunks:
     first = parts[0]
     for other in parts[1:]:
         same = (other.gyro.shape[1], other.length, other.every, other.context) == (
-            first.gyro.shape[1], first.length, first.every, first.context)  # fmt: skip
+            first.gyro.shape[1],
+            first.length,
+            first.every,
+            first.context,
+        )
         if not same or not torch.equal(other.starts, first.starts):
             raise InputError("concat_chunks: chunks differ in length, windows, context or supervised samples")
         for name, option in (("gravity_imu", "remove_gravity"), ("rotation", "gt_rotation")):
@@ -247,5 +271,16 @@ def concat_chunks(parts: list[Chunks]) -> Chunks:
     truth = Preintegrated(*(cat(lambda p, f=f: getattr(p.truth, f)) for f in ("rot", "vel", "pos", "dt")))
     gravity_imu = None if first.gravity_imu is None else cat(lambda p: p.gravity_imu)
     rotation = None if first.rotation is None else cat(lambda p: p.rotation)
-    return Chunks(cat(lambda p: p.gyro), cat(lambda p: p.acc), cat(lambda p: p.dt), truth, cat(lambda p: p.valid),
-                  first.starts, first.length, first.every, gravity_imu, first.context, rotation)  # fmt: skip
+    return Chunks(
+        cat(lambda p: p.gyro),
+        cat(lambda p: p.acc),
+        cat(lambda p: p.dt),
+        truth,
+        cat(lambda p: p.valid),
+        first.starts,
+        first.length,
+        first.every,
+        gravity_imu,
+        first.context,
+        rotation,
+    )

@@ -130,14 +130,26 @@ def build_windows(
             part = None
         elif train.chunk:
             part = make_chunks(
-                s, train.chunk, train.window, train.every, stride or train.window, remove_gravity=train.remove_gravity,
-                allow_empty=True, context=train.context, gt_rotation=train.gt_rotation,
-            )  # fmt: skip
+                s,
+                train.chunk,
+                train.window,
+                train.every,
+                stride or train.window,
+                remove_gravity=train.remove_gravity,
+                allow_empty=True,
+                context=train.context,
+                gt_rotation=train.gt_rotation,
+            )
         else:
             part = make_windows(
-                s, train.window, train.every, stride, remove_gravity=train.remove_gravity, allow_empty=True,
+                s,
+                train.window,
+                train.every,
+                stride,
+                remove_gravity=train.remove_gravity,
+                allow_empty=True,
                 context=train.context,
-            )  # fmt: skip
+            )
         if part is None:
             log.warning("%s: no usable window of %d samples (gaps, invalid truth); skipped", s.name, train.window)
         else:
@@ -203,13 +215,22 @@ def _train_run(config: ExperimentConfig, folder: Path, progress: bool, world: Wo
     model = build_model(config.model)
     use_cov = config.loss.covariance > 0
     trainer = Trainer(
-        model, build_windows(train_seqs, config, t.stride or None),
+        model,
+        build_windows(train_seqs, config, t.stride or None),
         build_windows(val_seqs, config, t.val_stride or None, "data.val"),
-        batch_size=t.batch_size, lr=t.lr, weight_decay=t.weight_decay, weights=loss_weights(config),
-        use_covariance=use_cov, plateau_factor=t.plateau_factor, plateau_patience=t.plateau_patience,
-        seed=t.seed, world=world, device=resolve_device(t.device), min_lr=t.min_lr,
+        batch_size=t.batch_size,
+        lr=t.lr,
+        weight_decay=t.weight_decay,
+        weights=loss_weights(config),
+        use_covariance=use_cov,
+        plateau_factor=t.plateau_factor,
+        plateau_patience=t.plateau_patience,
+        seed=t.seed,
+        world=world,
+        device=resolve_device(t.device),
+        min_lr=t.min_lr,
         ema_decay=t.ema_decay,
-    )  # fmt: skip
+    )
     trained_on = TrainedOn(
         rate_hz=float(np.median([1.0 / float(np.median(np.diff(s.t))) for s in train_seqs])),
         datasets=tuple(sorted({spec.dataset for spec in config.data.train})),
@@ -225,8 +246,11 @@ def _train_run(config: ExperimentConfig, folder: Path, progress: bool, world: Wo
         if writer:  # the other ranks go on to the next epoch and wait for rank 0 in its first step
             with trainer.averaged():
                 metrics = [evaluate_model(model, s, config) for s in val_seqs]
-            entry = replace(entry, val_roe_deg=float(np.mean([m.roe_deg for m in metrics])),
-                            val_rpe_rmse_m=float(np.mean([m.rpe_rmse_m for m in metrics])))  # fmt: skip
+            entry = replace(
+                entry,
+                val_roe_deg=float(np.mean([m.roe_deg for m in metrics])),
+                val_rpe_rmse_m=float(np.mean([m.rpe_rmse_m for m in metrics])),
+            )
         entry = replace(entry, seconds=time.perf_counter() - clock)
         history.append(entry)
         improved = best is None or entry.val_loss < best.val_loss  # val_loss: rank 0's, on every rank
@@ -340,7 +364,6 @@ def _differences(old: dict, new: dict, where: str = "") -> list[str]:
 
 def _stalled(history: list[EpochLog], best: BestEpoch | None, patience: int) -> bool:
     return bool(history) and stopped_early(history[-1].epoch, best.epoch, patience)
-
 
 
 def _write_metrics(path: Path, history: list[EpochLog]) -> None:

@@ -64,7 +64,7 @@ def truth_deltas(start: NavState, end: NavState, elapsed: torch.Tensor, gravity)
     t = elapsed[..., None]
     r_i_t = start.rot.mT[..., None, :, :]
     vel = (r_i_t @ (end.vel - start.vel[..., None, :] - g * t)[..., None])[..., 0]
-    pos = (r_i_t @ (end.pos - start.pos[..., None, :] - start.vel[..., None, :] * t - 0.5 * g * t * t)[..., None])
+    pos = r_i_t @ (end.pos - start.pos[..., None, :] - start.vel[..., None, :] * t - 0.5 * g * t * t)[..., None]
     return Preintegrated(rot=r_i_t @ end.rot, vel=vel, pos=pos[..., 0], dt=elapsed)
 
 

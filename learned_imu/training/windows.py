@@ -73,10 +73,16 @@ class Windows:
             return NavState(rot=state.rot.to(device), vel=state.vel.to(device), pos=state.pos.to(device))
 
         return Windows(
-            self.gyro.to(device), self.acc.to(device), self.dt.to(device), move(self.start), move(self.targets),
-            self.gravity.to(device), self.at, None if self.gravity_imu is None else self.gravity_imu.to(device),
+            self.gyro.to(device),
+            self.acc.to(device),
+            self.dt.to(device),
+            move(self.start),
+            move(self.targets),
+            self.gravity.to(device),
+            self.at,
+            None if self.gravity_imu is None else self.gravity_imu.to(device),
             self.context,
-        )  # fmt: skip
+        )
 
     @property
     def windows(self) -> int:
@@ -92,19 +98,32 @@ class Windows:
             return NavState(rot=state.rot.double(), vel=state.vel.double(), pos=state.pos.double())
 
         return Windows(
-            self.gyro.double(), self.acc.double(), self.dt.double(), cast(self.start), cast(self.targets),
-            self.gravity.double(), self.at, None if self.gravity_imu is None else self.gravity_imu.double(),
+            self.gyro.double(),
+            self.acc.double(),
+            self.dt.double(),
+            cast(self.start),
+            cast(self.targets),
+            self.gravity.double(),
+            self.at,
+            None if self.gravity_imu is None else self.gravity_imu.double(),
             self.context,
-        )  # fmt: skip
+        )
 
     def select(self, index: torch.Tensor) -> Windows:
         """The windows at ``index`` (a 1-D index tensor)."""
         index = index.to(self.gyro.device)
         pick = _pick(index)
         return Windows(
-            self.gyro[index], self.acc[index], self.dt[index], pick(self.start), pick(self.targets), self.gravity,
-            self.at, None if self.gravity_imu is None else self.gravity_imu[index], self.context,
-        )  # fmt: skip
+            self.gyro[index],
+            self.acc[index],
+            self.dt[index],
+            pick(self.start),
+            pick(self.targets),
+            self.gravity,
+            self.at,
+            None if self.gravity_imu is None else self.gravity_imu[index],
+            self.context,
+        )
 
 
 def usable_windows(sequence: ImuSequence, starts: np.ndarray, length: int, need_valid: bool = True) -> np.ndarray:
@@ -205,6 +224,13 @@ def concat_windows(parts: list[Windows]) -> Windows:
 
     gravity_imu = None if first.gravity_imu is None else cat("gravity_imu")
     return Windows(
-        cat("gyro"), cat("acc"), cat("dt"), cat_state("start"), cat_state("targets"), first.gravity, first.at,
-        gravity_imu, first.context,
-    )  # fmt: skip
+        cat("gyro"),
+        cat("acc"),
+        cat("dt"),
+        cat_state("start"),
+        cat_state("targets"),
+        first.gravity,
+        first.at,
+        gravity_imu,
+        first.context,
+    )

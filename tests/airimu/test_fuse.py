@@ -22,8 +22,19 @@ def test_fuse_gtsams_kitti_drive_with_its_real_gps(shared_data, tmp_path):
     from evo.tools import file_interface
 
     out = tmp_path / "fused"
-    args = ["fuse", "--dataset", "kitti", "--path", str(shared_data / "kitti_gtsam"), "--gps-every", "10",
-            "--keyframes", "1s", "--out", str(out)]  # fmt: skip
+    args = [
+        "fuse",
+        "--dataset",
+        "kitti",
+        "--path",
+        str(shared_data / "kitti_gtsam"),
+        "--gps-every",
+        "10",
+        "--keyframes",
+        "1s",
+        "--out",
+        str(out),
+    ]
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
     summary = json.loads((out / "summary.json").read_text())
@@ -39,8 +50,17 @@ def test_fuse_gtsams_kitti_drive_with_its_real_gps(shared_data, tmp_path):
 
 def test_reader_options_are_checked_against_the_reader(shared_data, tmp_path):
     drive = shared_data / "kitti_raw" / "2011_10_03_drive_0027.csv"
-    args = ["fuse", "--dataset", "kitti_raw", "--path", str(drive), "--reader-option", "on_backwards=drop",
-            "--out", str(tmp_path)]  # fmt: skip
+    args = [
+        "fuse",
+        "--dataset",
+        "kitti_raw",
+        "--path",
+        str(drive),
+        "--reader-option",
+        "on_backwards=drop",
+        "--out",
+        str(tmp_path),
+    ]
     result = CliRunner().invoke(app, args, env={"COLUMNS": "200"})  # a ConfigError: main() prints it as one line
     assert result.exit_code != 0 and "reader option 'on_backwards': kitti_raw has no such option" in str(
         result.exception
@@ -97,10 +117,14 @@ def write_bag_with_navsatfix(path, seq, fixes_every: int, sigma: float):
         fix = writer.add_connection("/fix", "sensor_msgs/msg/NavSatFix", typestore=ts)
         for k, t in enumerate(seq.t):
             msg = types["sensor_msgs/msg/Imu"](
-                header=header(t), orientation=quat(x=0.0, y=0.0, z=0.0, w=1.0), orientation_covariance=np.zeros(9),
-                angular_velocity=vec3(*seq.gyro[k]), angular_velocity_covariance=np.zeros(9),
-                linear_acceleration=vec3(*seq.acc[k]), linear_acceleration_covariance=np.zeros(9),
-            )  # fmt: skip
+                header=header(t),
+                orientation=quat(x=0.0, y=0.0, z=0.0, w=1.0),
+                orientation_covariance=np.zeros(9),
+                angular_velocity=vec3(*seq.gyro[k]),
+                angular_velocity_covariance=np.zeros(9),
+                linear_acceleration=vec3(*seq.acc[k]),
+                linear_acceleration_covariance=np.zeros(9),
+            )
             writer.write(imu, int(t * 1e9), ts.serialize_cdr(msg, "sensor_msgs/msg/Imu"))
             if k % fixes_every == 0 or k == 5:
                 status = -1 if k == 5 else 0  # sample 5: STATUS_NO_FIX, must be skipped
@@ -108,10 +132,14 @@ def write_bag_with_navsatfix(path, seq, fixes_every: int, sigma: float):
                 origin = noisy if origin is None and status == 0 else origin
                 glat, glon, galt = pymap3d.enu2geodetic(*noisy, 49.0, 8.4, 110.0)
                 msg = types["sensor_msgs/msg/NavSatFix"](
-                    header=header(t), status=types["sensor_msgs/msg/NavSatStatus"](status=status, service=1),
-                    latitude=float(glat), longitude=float(glon), altitude=float(galt),
-                    position_covariance=np.diag([sigma**2] * 3).ravel(), position_covariance_type=2,
-                )  # fmt: skip
+                    header=header(t),
+                    status=types["sensor_msgs/msg/NavSatStatus"](status=status, service=1),
+                    latitude=float(glat),
+                    longitude=float(glon),
+                    altitude=float(galt),
+                    position_covariance=np.diag([sigma**2] * 3).ravel(),
+                    position_covariance_type=2,
+                )
                 writer.write(fix, int(t * 1e9) + 1000, ts.serialize_cdr(msg, "sensor_msgs/msg/NavSatFix"))
     return path, origin  # the first kept fix: the origin of the reader's local ENU frame
 
@@ -127,8 +155,21 @@ def test_fuse_a_ros2_bag_with_navsatfix(tmp_path):
     assert len(read.gps.t) == 30 and np.allclose(read.gps.sigma, 0.5)  # the no-fix message skipped
     np.testing.assert_allclose(read.gps.pos[0], 0.0, atol=1e-9)  # ENU at the first fix
     out = tmp_path / "fused"
-    args = ["fuse", "--dataset", "rosbag", "--path", str(bag), "--reader-option", "gps_topic=/fix",
-            "--gyro-noise-density", "0.0003", "--acc-noise-density", "0.003", "--out", str(out)]  # fmt: skip
+    args = [
+        "fuse",
+        "--dataset",
+        "rosbag",
+        "--path",
+        str(bag),
+        "--reader-option",
+        "gps_topic=/fix",
+        "--gyro-noise-density",
+        "0.0003",
+        "--acc-noise-density",
+        "0.003",
+        "--out",
+        str(out),
+    ]
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
     summary = json.loads((out / "summary.json").read_text())
@@ -167,8 +208,9 @@ def test_fuse_with_bias_states_is_re_linearised_to_a_fixed_point():
     # the reference: GTSAM's CombinedImuFactors preintegrated from the samples at the result's biases, solved once more
     blind = dataclasses.replace(done.sequence, gt=None)
     index = np.unique(nearest_samples(done.sequence, done.sequence.gps.t)[0])
-    export = load_export(export_preintegration(Path(tempfile.mkdtemp()) / "e.npz", blind, index,
-                                               correction=done.correction))  # fmt: skip
+    export = load_export(
+        export_preintegration(Path(tempfile.mkdtemp()) / "e.npz", blind, index, correction=done.correction)
+    )
     graph, _ = build_graph(export, done.gps, settings, bias=states)
     values = done.solution.values
     again = gtsam.NonlinearFactorGraph()
@@ -180,8 +222,12 @@ def test_fuse_with_bias_states_is_re_linearised_to_a_fixed_point():
         again.add(factor)
     fixed = gtsam.LevenbergMarquardtOptimizer(again, values).optimize()
     first_order = solve(graph, values, export.keyframe_t, settings).values
-    moved = [np.linalg.norm(fixed.atPose3(X(k)).translation() - values.atPose3(X(k)).translation()) for k in
-             range(len(index))]  # fmt: skip
-    off = [np.linalg.norm(first_order.atPose3(X(k)).translation() - values.atPose3(X(k)).translation()) for k in
-           range(len(index))]  # fmt: skip
+    moved = [
+        np.linalg.norm(fixed.atPose3(X(k)).translation() - values.atPose3(X(k)).translation())
+        for k in range(len(index))
+    ]
+    off = [
+        np.linalg.norm(first_order.atPose3(X(k)).translation() - values.atPose3(X(k)).translation())
+        for k in range(len(index))
+    ]
     assert max(moved) < 1e-6 < 1e-3 < max(off)

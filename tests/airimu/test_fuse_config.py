@@ -61,8 +61,17 @@ def test_config_file_and_flag_overrides(tmp_path):
     bag, _ = write_bag_with_navsatfix(tmp_path / "drive", seq, fixes_every=200, sigma=0.5)
     config = tmp_path / "mine.yaml"
     config.write_text("gyro_noise_density: 0.0003\nacc_noise_density: 0.003\nkeyframe_s: 2.0\n")
-    base = ["fuse", "--dataset", "rosbag", "--path", str(bag), "--reader-option", "gps_topic=/fix",
-            "--config", str(config)]  # fmt: skip
+    base = [
+        "fuse",
+        "--dataset",
+        "rosbag",
+        "--path",
+        str(bag),
+        "--reader-option",
+        "gps_topic=/fix",
+        "--config",
+        str(config),
+    ]
     runs = {
         "file": [],  # keyframes every 2 s from the file
         "flag": ["--keyframes", "fixes"],  # the flag wins: a keyframe at every 1 Hz fix

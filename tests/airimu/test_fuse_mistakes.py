@@ -1,5 +1,5 @@
-"""``airimu fuse``: plausible mistakes are refused or warned about, never fused into a silently wrong result
-(issue 26, part 1). Real data: GTSAM's KITTI drive (2011_10_03_drive_0027), its OXTS ground truth and GTSAM's GPS."""
+"""``airimu fuse``: plausible mistakes are refused or warned about, never fused into a silently wrong result.
+Real data: GTSAM's KITTI drive (2011_10_03_drive_0027), its OXTS ground truth and GTSAM's GPS."""
 
 from __future__ import annotations
 
@@ -19,8 +19,14 @@ from fusion.config import FuseConfig
 from learned_imu.datasets.gps import read_gps_csv
 
 DRIVE = "kitti_raw/2011_10_03_drive_0027.csv"
-REPAIR = ["--reader-option", "on_backward=drop", "--reader-option", "on_duplicate=drop", "--reader-option",
-          "on_gap=keep"]  # fmt: skip
+REPAIR = [
+    "--reader-option",
+    "on_backward=drop",
+    "--reader-option",
+    "on_duplicate=drop",
+    "--reader-option",
+    "on_gap=keep",
+]
 
 
 @pytest.fixture(scope="module")
@@ -40,11 +46,14 @@ def gps_files(folder, seq):
     pos = seq.gt.pos[index] + np.random.default_rng(0).normal(0.0, 0.3, (len(index), 3))
     lat, lon, alt = pymap3d.enu2geodetic(pos[:, 0], pos[:, 1], pos[:, 2], 49.0115, 8.4229, 112.0)
     t = seq.t[index]
-    tables = {"deg": ("t,lat,lon,alt", np.c_[t, lat, lon, alt]),
-              "rad": ("t,lat,lon,alt", np.c_[t, np.radians(lat), np.radians(lon), alt]),
-              "swapped": ("t,lat,lon,alt", np.c_[t, lon, lat, alt]),
-              "m": ("t,x,y,z", np.c_[t, pos]), "km": ("t,x,y,z", np.c_[t, pos / 1000.0]),
-              "xy": ("t,x,y,z", np.c_[t, pos[:, [1, 0, 2]]])}  # fmt: skip
+    tables = {
+        "deg": ("t,lat,lon,alt", np.c_[t, lat, lon, alt]),
+        "rad": ("t,lat,lon,alt", np.c_[t, np.radians(lat), np.radians(lon), alt]),
+        "swapped": ("t,lat,lon,alt", np.c_[t, lon, lat, alt]),
+        "m": ("t,x,y,z", np.c_[t, pos]),
+        "km": ("t,x,y,z", np.c_[t, pos / 1000.0]),
+        "xy": ("t,x,y,z", np.c_[t, pos[:, [1, 0, 2]]]),
+    }
     paths = {}
     for name, (header, rows) in tables.items():
         paths[name] = folder / f"{name}.csv"
@@ -119,14 +128,40 @@ def test_gps_time_offset_shifts_the_fixes(shared_data, tmp_path, capsys, monkeyp
     for name, extra in (("as read", []), ("shifted", ["--gps-time-offset", "2"])):
         with caplog.at_level(logging.WARNING):
             caplog.clear()
-            code, err = run(capsys, monkeypatch, "fuse", "--dataset", "kitti_raw", "--path", shared_data / DRIVE,
-                            *REPAIR, "--gps", late, "--gps-every", "5", "--out", tmp_path / name, *extra)  # fmt: skip
+            code, err = run(
+                capsys,
+                monkeypatch,
+                "fuse",
+                "--dataset",
+                "kitti_raw",
+                "--path",
+                shared_data / DRIVE,
+                *REPAIR,
+                "--gps",
+                late,
+                "--gps-every",
+                "5",
+                "--out",
+                tmp_path / name,
+                *extra,
+            )
         assert code == 0, err
         summaries[name] = json.loads((tmp_path / name / "summary.json").read_text())
         assert ("GPS fixes look 2.1 s late" in caplog.text) == (name == "as read")  # 2 s and the OXTS's 0.1
     assert summaries["shifted"]["ate_aligned_m"] < 0.5 * summaries["as read"]["ate_aligned_m"]
-    code, err = run(capsys, monkeypatch, "fuse", "--dataset", "csv", "--path", "x", "--out", tmp_path / "y",
-                    "--gps-time-offset", "nan")  # fmt: skip
+    code, err = run(
+        capsys,
+        monkeypatch,
+        "fuse",
+        "--dataset",
+        "csv",
+        "--path",
+        "x",
+        "--out",
+        tmp_path / "y",
+        "--gps-time-offset",
+        "nan",
+    )
     assert code == 2 and "--gps-time-offset" in err
 
 
@@ -202,8 +237,21 @@ def test_fuse_warns_about_a_variance_given_as_a_sigma(shared_data, tmp_path, cap
 
 
 def test_noise_flags_with_a_checkpoint_are_refused(tmp_path, capsys, monkeypatch):
-    code, err = run(capsys, monkeypatch, "fuse", "--dataset", "csv", "--path", tmp_path / "x.csv", "--out",
-                    tmp_path / "f", "--checkpoint", tmp_path / "best.pt", "--gyro-noise-density", "0.004")  # fmt: skip
+    code, err = run(
+        capsys,
+        monkeypatch,
+        "fuse",
+        "--dataset",
+        "csv",
+        "--path",
+        tmp_path / "x.csv",
+        "--out",
+        tmp_path / "f",
+        "--checkpoint",
+        tmp_path / "best.pt",
+        "--gyro-noise-density",
+        "0.004",
+    )
     assert code == 2 and err.count("\n") == 1 and "apply without --checkpoint only" in err
     from airimu.fuse import fuse
     from learned_imu.datasets.simulator import simulate
@@ -213,8 +261,7 @@ def test_noise_flags_with_a_checkpoint_are_refused(tmp_path, capsys, monkeypatch
 
 
 def test_typer_parsing_errors_are_one_line(capsys, monkeypatch):
-    code, err = run(capsys, monkeypatch, "fuse", "--dataset", "csv", "--path", "x", "--out", "y", "--gps-every",
-                    "abc")  # fmt: skip
+    code, err = run(capsys, monkeypatch, "fuse", "--dataset", "csv", "--path", "x", "--out", "y", "--gps-every", "abc")
     assert code == 2 and err.count("\n") == 1 and err.startswith("airimu: error: Invalid value for '--gps-every'")
     assert "airimu fuse --help" in err and "╭" not in err
     code, err = run(capsys, monkeypatch, "fuse", "--dataset", "csv")
@@ -222,8 +269,7 @@ def test_typer_parsing_errors_are_one_line(capsys, monkeypatch):
 
 
 @pytest.mark.slow
-def test_ate_is_scored_in_one_frame_and_the_imu_rate_file_is_what_evo_reads(shared_data, tmp_path, capsys,
-                                                                             monkeypatch):  # fmt: skip
+def test_ate_is_scored_in_one_frame_and_the_imu_rate_file_is_what_evo_reads(shared_data, tmp_path, capsys, monkeypatch):
     """GTSAM's GPS file lives in its own frame, the OXTS ground truth in ENU: the unaligned ATE is large, the
     SE(3)-aligned one is evo's on ``fused_imu_rate.tum``."""
     from evo.core import metrics, sync
@@ -234,9 +280,24 @@ def test_ate_is_scored_in_one_frame_and_the_imu_rate_file_is_what_evo_reads(shar
     from learned_imu.datasets import read_sequence
 
     out = tmp_path / "f"
-    code, err = run(capsys, monkeypatch, "fuse", "--dataset", "kitti_raw", "--path", shared_data / DRIVE, *REPAIR,
-                    "--gps", shared_data / "kitti_gtsam" / "KittiGps_converted.txt", "--gps-every", "10",
-                    "--keyframes", "1s", "--out", out)  # fmt: skip
+    code, err = run(
+        capsys,
+        monkeypatch,
+        "fuse",
+        "--dataset",
+        "kitti_raw",
+        "--path",
+        shared_data / DRIVE,
+        *REPAIR,
+        "--gps",
+        shared_data / "kitti_gtsam" / "KittiGps_converted.txt",
+        "--gps-every",
+        "10",
+        "--keyframes",
+        "1s",
+        "--out",
+        out,
+    )
     assert code == 0, err
     summary = json.loads((out / "summary.json").read_text())
     assert summary["ate_aligned_m"] < 3.0 < 10.0 < summary["ate_unaligned_m"]  # measured 2.19 and 14.2 m
@@ -271,8 +332,9 @@ def test_list_reader_options_take_both_spellings(tmp_path, capsys, monkeypatch):
     path = tmp_path / "imu.csv"
     path.write_text("\n".join(f"{0.01 * k:.2f},0,0,0,0,0,9.81" for k in range(300)) + "\n")
     for spelling in ("gt_pos=7,8,9", "gt_pos=[7,8,9]"):  # only gt_pos: refused for the missing gt_quat, not parsed
-        code, err = run(capsys, monkeypatch, "evaluate", "--dataset", "csv", "--path", path, "--reader-option",
-                        spelling)  # fmt: skip
+        code, err = run(
+            capsys, monkeypatch, "evaluate", "--dataset", "csv", "--path", path, "--reader-option", spelling
+        )
         assert code == 2 and "gt_pos and gt_quat" in err, err
 
 
@@ -299,14 +361,30 @@ def test_a_byte_order_mark_is_read_as_the_imu_readers_read_it(tmp_path):
     np.testing.assert_array_equal(read_table(bare).data[:, 0], [0.0, 1.0])
 
 
-def test_a_second_fuse_into_a_folder_being_written_is_refused_naming_the_writer(shared_data, capsys, monkeypatch,
-                                                                                 tmp_path):
+def test_a_second_fuse_into_a_folder_being_written_is_refused_naming_the_writer(
+    shared_data, capsys, monkeypatch, tmp_path
+):
     from airimu_core.io import folder_lock
 
     out = tmp_path / "f"
     with folder_lock(out):  # another airimu fuse (or train, ablate-pgo) writing there
-        code, err = run(capsys, monkeypatch, "fuse", "--dataset", "kitti_raw", "--path", shared_data / DRIVE, *REPAIR,
-                        "--gps", shared_data / "kitti_gtsam" / "KittiGps_converted.txt", "--gps-every", "10",
-                        "--keyframes", "1s", "--out", out)  # fmt: skip
+        code, err = run(
+            capsys,
+            monkeypatch,
+            "fuse",
+            "--dataset",
+            "kitti_raw",
+            "--path",
+            shared_data / DRIVE,
+            *REPAIR,
+            "--gps",
+            shared_data / "kitti_gtsam" / "KittiGps_converted.txt",
+            "--gps-every",
+            "10",
+            "--keyframes",
+            "1s",
+            "--out",
+            out,
+        )
     assert code != 0 and "another writer holds it" in err and str(out) in err
     assert not (out / "summary.json").exists()

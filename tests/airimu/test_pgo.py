@@ -44,8 +44,16 @@ def test_table_rows_and_files(ablation):
     rows = json.loads(files["json"].read_text())
     first = [(r["setting"], r["gps_hz"]) for r in rows][:2]
     assert first == [("raw IMU + fixed cov", 1.0), ("raw IMU + fixed cov", 0.25)]
-    keys = {"setting", "gps_hz", "sequence", "ate_mean_m", "ate_std_m", "gps_chi2_per_dof", "imu_chi2_per_dof",
-            "paper_ate_m"}  # fmt: skip
+    keys = {
+        "setting",
+        "gps_hz",
+        "sequence",
+        "ate_mean_m",
+        "ate_std_m",
+        "gps_chi2_per_dof",
+        "imu_chi2_per_dof",
+        "paper_ate_m",
+    }
     assert len(rows) == 8 and all(set(r) == keys for r in rows)
     # every solve checked against its own noise model: the simulator's GPS sigma is the one fused, so the GPS
     # factors fit (of order 1, below it: the states absorb part of the residuals)
@@ -73,8 +81,12 @@ def test_recording_reads_back(ablation):
     k = 40  # keyframes every 0.2 s
     for entity in ("/imu/gyro", "/imu/acc", "/correction/gyro", "/sigma/acc"):
         assert rows[entity] == n + 1, entity  # x, y, z per sample, and the static series names and colours
-    for entity in ("/world/ground_truth", "/world/dead_reckoning/raw_imu", "/world/dead_reckoning/airimu",
-                   "/world/gps"):  # fmt: skip
+    for entity in (
+        "/world/ground_truth",
+        "/world/dead_reckoning/raw_imu",
+        "/world/dead_reckoning/airimu",
+        "/world/gps",
+    ):
         assert rows[entity] == 1, entity  # static: one strip / one point cloud
     assert rows["/world/fused/airimu_learned_cov/covariance"] == k + 1
     assert rows["/error/position/airimu_learned_cov"] == k + 1

@@ -64,9 +64,14 @@ def test_gap_noise_raises_only_the_interval_across_the_gap(drive, tmp_path):
 @pytest.mark.slow
 def test_recorded_rows_one_draw_per_phase_with_the_gtsam_example(drive, tmp_path):
     options = PgoOptions(
-        gps_hz=(1.0, 0.2), seeds=10, gps_source="recorded", keyframes="fixes", gtsam_example=True,
-        score_span="gps", gap_noise_density=(0.06, 0.7),
-    )  # fmt: skip
+        gps_hz=(1.0, 0.2),
+        seeds=10,
+        gps_source="recorded",
+        keyframes="fixes",
+        gtsam_example=True,
+        score_span="gps",
+        gap_noise_density=(0.06, 0.7),
+    )
     rows, examples = run_sequence(drive, raw_correction(drive), tmp_path, options)
     assert [r.setting for r in rows[::2]] == [s.name for s in (*SETTINGS, GTSAM_EXAMPLE)]
     assert set(examples) == {s.name for s in (*SETTINGS, GTSAM_EXAMPLE)}

@@ -36,11 +36,18 @@ def recording(tmp_path_factory):
     drift = [Track("raw IMU", t, truth.pos + t[:, None] ** 2), Track("AirIMU", t, truth.pos + 0.1 * t[:, None])]
     rng = np.random.default_rng(0)
     n = np.linspace(0.0, 10.0, 2001)
-    imu = ImuSeries(n, 0.4 * rng.standard_normal((len(n), 3)), 9.8 + rng.standard_normal((len(n), 3)),
-                    np.full((len(n), 3), 1e-3), np.full((len(n), 3), 1e-2), np.full((len(n), 3), 4e-6),
-                    np.full((len(n), 3), 1e-4))  # fmt: skip
-    path = write_recording(tmp_path_factory.mktemp("rec") / "run.rrd", fused, truth, drift, (t[::10], truth.pos[::10]),
-                           imu)  # fmt: skip
+    imu = ImuSeries(
+        n,
+        0.4 * rng.standard_normal((len(n), 3)),
+        9.8 + rng.standard_normal((len(n), 3)),
+        np.full((len(n), 3), 1e-3),
+        np.full((len(n), 3), 1e-2),
+        np.full((len(n), 3), 4e-6),
+        np.full((len(n), 3), 1e-4),
+    )
+    path = write_recording(
+        tmp_path_factory.mktemp("rec") / "run.rrd", fused, truth, drift, (t[::10], truth.pos[::10]), imu
+    )
     return path, t
 
 
@@ -100,8 +107,10 @@ def test_blueprint_views_and_entity_filters(recording):
         "learned gyro σ (rad/s/√Hz)": ["+ /sigma/gyro"],
         "learned acc σ (m/s²/√Hz)": ["+ /sigma/acc"],
         "AirIMU + learned cov (m)": ["+ /error/position/airimu_learned_cov", "+ /error/sigma3/airimu_learned_cov"],
-        "dead-reckoning drift from ground truth (m)": ["+ /error/dead_reckoning/raw_imu",
-                                                       "+ /error/dead_reckoning/airimu"],  # fmt: skip
+        "dead-reckoning drift from ground truth (m)": [
+            "+ /error/dead_reckoning/raw_imu",
+            "+ /error/dead_reckoning/airimu",
+        ],
     }
     for name, query in expected.items():
         assert views[name]["class"] == "TimeSeries" and views[name]["query"] == query, name
@@ -113,8 +122,11 @@ def test_blueprint_views_and_entity_filters(recording):
     assert blueprint["/time_panel"]["TimePanelBlueprint:state"] == [[3]]
     assert blueprint["/time_panel"]["TimePanelBlueprint:timeline"] == [["time"]]
     # tabs per sensor on the plot side
-    tabs = {c["ContainerBlueprint:display_name"][-1][0] for c in blueprint.values() if
-            "ContainerBlueprint:display_name" in c}  # fmt: skip
+    tabs = {
+        c["ContainerBlueprint:display_name"][-1][0]
+        for c in blueprint.values()
+        if "ContainerBlueprint:display_name" in c
+    }
     assert {"position error (m)", "gyro (rad/s)", "acc (m/s²)", "dead reckoning"} <= tabs
 
 
@@ -208,8 +220,9 @@ def test_training_is_drawn_in_rerun_and_logged_one_line_per_epoch(tmp_path, caps
     history = [json.loads(line) for line in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
     entities = _entities(tmp_path / "run" / "training.rrd")
     assert entities["/loss"]["SeriesLines:names"] == [["train", "validation"]]
-    np.testing.assert_allclose(entities["/loss"]["Scalars:scalars"],
-                               [[h["train_loss"], h["val_loss"]] for h in history])  # fmt: skip
+    np.testing.assert_allclose(
+        entities["/loss"]["Scalars:scalars"], [[h["train_loss"], h["val_loss"]] for h in history]
+    )
     roe = np.ravel(entities["/val/roe_deg"]["Scalars:scalars"])
     np.testing.assert_allclose(roe, [h["val_roe_deg"] for h in history])
     views = _views(_entities(tmp_path / "run" / "training.rrd", blueprint=True))

@@ -32,8 +32,11 @@ def others(seq, export) -> gtsam.NonlinearFactorGraph:
     rng = np.random.default_rng(0)
     for k, i in enumerate(index):
         graph.add(GpsFactor(X(k), gt.pos[i] + rng.normal(0, 0.1, 3), gps_noise(0.1)))
-    graph.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(gtsam.Rot3(gt.rot[0]), gt.pos[0]),
-                                     gtsam.noiseModel.Isotropic.Sigma(6, 1e-3)))  # fmt: skip
+    graph.add(
+        gtsam.PriorFactorPose3(
+            X(0), gtsam.Pose3(gtsam.Rot3(gt.rot[0]), gt.pos[0]), gtsam.noiseModel.Isotropic.Sigma(6, 1e-3)
+        )
+    )
     graph.add(gtsam.PriorFactorVector(V(0), gt.vel[0], gtsam.noiseModel.Isotropic.Sigma(3, 1e-3)))
     loose = gtsam.noiseModel.Isotropic.Sigma(6, 1.0)
     graph.add(gtsam.PriorFactorConstantBias(B(0), gtsam.imuBias.ConstantBias(), loose))
@@ -101,8 +104,9 @@ def test_relinearised_learned_route_equals_gtsams_re_preintegrated_route(drive):
         np.testing.assert_allclose(ours.atConstantBias(B(k)).vector(), theirs.atConstantBias(B(k)).vector(), atol=1e-6)
     gyro_bias = theirs.atConstantBias(B(0)).gyroscope()
     assert 0.1 < np.abs(gyro_bias).max() < 0.5  # the large biases the test is about
-    gap = max(np.linalg.norm(first_order.atPose3(X(k)).translation() - theirs.atPose3(X(k)).translation())
-              for k in range(n))  # fmt: skip
+    gap = max(
+        np.linalg.norm(first_order.atPose3(X(k)).translation() - theirs.atPose3(X(k)).translation()) for k in range(n)
+    )
     assert gap > 1e-3  # the first-order correction alone is off by far more than the re-linearised route
 
 
@@ -139,8 +143,9 @@ def test_solve_relinearised_is_the_loop_built_in(drive):
     done = solve_relinearised(graph, initial(seq, export), export, tol=1e-9, lm_params=lm)
     assert 2 <= done.rounds < 10 and done.bias_change < 1e-9
     for k in range(n):
-        np.testing.assert_allclose(done.values.atPose3(X(k)).translation(), theirs.atPose3(X(k)).translation(),
-                                   atol=1e-6)  # fmt: skip
+        np.testing.assert_allclose(
+            done.values.atPose3(X(k)).translation(), theirs.atPose3(X(k)).translation(), atol=1e-6
+        )
     with pytest.raises(ValueError, match="IMU factors"):
         solve_relinearised(others(seq, export), initial(seq, export), export)
 
@@ -169,8 +174,9 @@ def test_solve_relinearised_on_a_real_flight_with_a_large_gyro_bias(shared_data,
     gap = max(np.linalg.norm(first.atPose3(X(k)).translation() - theirs.atPose3(X(k)).translation()) for k in range(n))
     assert gap > 5e-3, gap  # the first-order correction alone: measured 0.30 m (5 solves)
     for k in range(n):
-        np.testing.assert_allclose(done.values.atPose3(X(k)).translation(), theirs.atPose3(X(k)).translation(),
-                                   atol=1e-6)  # fmt: skip
+        np.testing.assert_allclose(
+            done.values.atPose3(X(k)).translation(), theirs.atPose3(X(k)).translation(), atol=1e-6
+        )
 
 
 def gtsams_own(seq, export, values) -> list:

@@ -128,8 +128,12 @@ def test_ground_truth_is_a_typed_field_all_or_nothing(exported, sequence, tmp_pa
     assert export.truth.valid.dtype == bool and export.t.shape == (len(sequence),)
     with pytest.raises(ExportError, match="'gt_vel' is missing"):
         load_export(_rewrite(exported, tmp_path / "part.npz", gt_vel=None))
-    assert load_export(_rewrite(exported, tmp_path / "none.npz", gt_rot=None, gt_pos=None, gt_vel=None,
-                                gt_valid=None)).truth is None  # fmt: skip
+    assert (
+        load_export(
+            _rewrite(exported, tmp_path / "none.npz", gt_rot=None, gt_pos=None, gt_vel=None, gt_valid=None)
+        ).truth
+        is None
+    )
 
 
 def test_the_export_takes_a_correction(sequence, tmp_path):
@@ -140,8 +144,9 @@ def test_the_export_takes_a_correction(sequence, tmp_path):
     rng = np.random.default_rng(5)
     gyro, acc = sequence.gyro + rng.normal(0, 1e-3, sequence.gyro.shape), sequence.acc + 0.01
     gyro_cov, acc_cov = np.full_like(gyro, 2e-8), rng.uniform(1e-6, 4e-6, acc.shape)
-    correction = Correction(*(torch.as_tensor(x) for x in (gyro, acc, gyro - sequence.gyro, acc - sequence.acc,
-                                                              gyro_cov, acc_cov)))  # fmt: skip
+    correction = Correction(
+        *(torch.as_tensor(x) for x in (gyro, acc, gyro - sequence.gyro, acc - sequence.acc, gyro_cov, acc_cov))
+    )
     index = keyframes_every(sequence, 0.5)
     by_record = load_export(export_preintegration(tmp_path / "c.npz", sequence, index, correction=correction))
     by_arrays = load_export(export_preintegration(tmp_path / "a.npz", sequence, index, gyro_cov, acc_cov, gyro, acc))
@@ -158,8 +163,11 @@ def test_keyframe_specs_that_cannot_give_two_keyframes_name_the_recording(tmp_pa
 
     seq = simulate("drone", duration_s=10.0, seed=0)
     assert len(keyframes_from_spec(seq, "1s")) == 10
-    with pytest.raises(InputError, match=r"--keyframes 500s: the interval is longer than the recording, 9.995 s "
-                                         r"\(2000 samples\).*milliseconds given as seconds\?"):  # fmt: skip
+    with pytest.raises(
+        InputError,
+        match=r"--keyframes 500s: the interval is longer than the recording, 9.995 s "
+        r"\(2000 samples\).*milliseconds given as seconds\?",
+    ):
         keyframes_from_spec(seq, "500s")
     times = tmp_path / "times.txt"
     times.write_text("\n".join(str(int(t * 1e9)) for t in seq.t[::200]) + "\n")  # ns, not s

@@ -28,7 +28,7 @@ def test_covariance_matches_learned_imu_preintegrate_with_per_sample_noise():
         *(torch.tensor(x) for x in (gyro, acc)), DT, torch.tensor(gyro_density), torch.tensor(acc_density), at=-1
     )
     ref = pim.preintMeasCov()
-    # GTSAM linearises its tangent preintegration slightly differently (issue 2: within 1 % up to 1 rad/s)
+    # GTSAM linearises its tangent preintegration slightly differently (within 1 % up to 1 rad/s)
     assert np.abs(ours.cov[0].numpy() - ref).max() / np.abs(ref).max() < 0.01
     np.testing.assert_allclose(pim.deltaPij(), ours.pos[0].numpy(), rtol=1e-2)
     np.testing.assert_allclose(pim.deltaVij(), ours.vel[0].numpy(), rtol=1e-2)

@@ -1,4 +1,4 @@
-"""``learned_pim``: typed noise and time steps that the samples contradict (issue 26: a sigma given as ``gyro_cov``,
+"""``learned_pim``: typed noise and time steps that the samples contradict (a sigma given as ``gyro_cov``,
 0.5, or dt = 10 s were all accepted). Real samples: GTSAM's KITTI IMU file."""
 
 from __future__ import annotations
@@ -52,17 +52,27 @@ def test_ragged_complex_or_text_inputs_are_refused_by_name_not_by_numpy():
 
     gyro, acc = [[0.0, 0.0, 0.0]] * 2, [[0.0, 0.0, 9.8]] * 2
     cases = [
-        (lambda: learned_pim([[0.0, 0.0, 0.0], [0.0, 0.0]], acc, 0.005, 1e-4, 1e-3, gravity_m_s2=9.81),
-         "learned_pim: gyro: expected an array of real numbers, got a ragged nesting"),
-        (lambda: learned_pim(gyro, acc, 0.005 + 0j, 1e-4, 1e-3, gravity_m_s2=9.81),
-         "learned_pim: dt: expected real numbers, got complex values"),
-        (lambda: learned_pim(gyro, acc, 0.005, "1e-4 rad", 1e-3, gravity_m_s2=9.81),
-         "learned_pim: gyro_cov: expected an array of real numbers"),
-        (lambda: GpsFixes(np.array([0.0, 1.0]), [[1, 2, 3], [1, 2]], 1.0),
-         "GpsFixes.pos: expected an array of real numbers, got a ragged nesting"),
-        (lambda: GpsFixes(np.array([0.0, 1.0]), np.zeros((2, 3)) + 1j, 1.0),
-         "GpsFixes.pos: expected real numbers, got complex values"),
-    ]  # fmt: skip
+        (
+            lambda: learned_pim([[0.0, 0.0, 0.0], [0.0, 0.0]], acc, 0.005, 1e-4, 1e-3, gravity_m_s2=9.81),
+            "learned_pim: gyro: expected an array of real numbers, got a ragged nesting",
+        ),
+        (
+            lambda: learned_pim(gyro, acc, 0.005 + 0j, 1e-4, 1e-3, gravity_m_s2=9.81),
+            "learned_pim: dt: expected real numbers, got complex values",
+        ),
+        (
+            lambda: learned_pim(gyro, acc, 0.005, "1e-4 rad", 1e-3, gravity_m_s2=9.81),
+            "learned_pim: gyro_cov: expected an array of real numbers",
+        ),
+        (
+            lambda: GpsFixes(np.array([0.0, 1.0]), [[1, 2, 3], [1, 2]], 1.0),
+            "GpsFixes.pos: expected an array of real numbers, got a ragged nesting",
+        ),
+        (
+            lambda: GpsFixes(np.array([0.0, 1.0]), np.zeros((2, 3)) + 1j, 1.0),
+            "GpsFixes.pos: expected real numbers, got complex values",
+        ),
+    ]
     for build, message in cases:
         with pytest.raises(ValueError, match=message):  # learned_pim's refusals are ValueErrors, GpsFixes' InputErrors
             build()

@@ -53,8 +53,11 @@ def test_degrees_of_freedom_are_the_redundancy_the_states_leave():
     values.insert(X(0), gtsam.Pose3(gtsam.Rot3(), np.array([1.0, 2.0, 4.0])))
     values.insert(B(0), gtsam.imuBias.ConstantBias())
     graph = gtsam.NonlinearFactorGraph()
-    graph.add(gtsam.PriorFactorPose3(X(0), values.atPose3(X(0)),
-                                     gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3] * 3 + [1e4] * 3))))  # fmt: skip
+    graph.add(
+        gtsam.PriorFactorPose3(
+            X(0), values.atPose3(X(0)), gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3] * 3 + [1e4] * 3))
+        )
+    )
     sigma = gtsam.noiseModel.Isotropic.Sigma(3, 0.5)
     graph.add(GpsFactor(X(0), np.array([1.0, 2.0, 3.0]), sigma))
     graph.add(GpsFactor(X(0), np.array([1.0, 2.0, 5.0]), sigma))

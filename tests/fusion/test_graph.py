@@ -181,8 +181,11 @@ def test_bias_walk_per_interval_or_cumulative_as_gtsams_kitti_example(setup):
     for walk, count in (("per_interval", samples), ("cumulative", np.cumsum(samples))):
         bias = BiasStates(1e-4, 1e-5, 1.0, 0.1, walk=walk)
         graph, _ = build_graph(export, fuse, FusionSettings(), bias=bias)
-        sigmas = [graph.at(i).noiseModel().sigmas() for i in range(graph.size())
-                  if isinstance(graph.at(i), gtsam.BetweenFactorConstantBias)]  # fmt: skip
+        sigmas = [
+            graph.at(i).noiseModel().sigmas()
+            for i in range(graph.size())
+            if isinstance(graph.at(i), gtsam.BetweenFactorConstantBias)
+        ]
         np.testing.assert_allclose(np.array(sigmas), np.sqrt(count)[:, None] * per_sample, rtol=1e-12)
     assert np.sqrt(np.cumsum(samples)[-1] / samples[-1]) > 10  # the two differ: 200 keyframes, 14x at the end
     assert GTSAM_EXAMPLE.bias.walk == "cumulative"

@@ -52,9 +52,12 @@ def small_model() -> AirImuNet:
     """A small untrained model whose decoders are random, so corrections and densities vary block by block."""
     torch.manual_seed(0)
     model = AirImuNet(
-        conv_channels=(8, 16), gru_sizes=(16, 32), decoder_hidden=16,
-        init_gyro_cov=DENSITIES[0], init_acc_cov=DENSITIES[1],
-    )  # fmt: skip
+        conv_channels=(8, 16),
+        gru_sizes=(16, 32),
+        decoder_hidden=16,
+        init_gyro_cov=DENSITIES[0],
+        init_acc_cov=DENSITIES[1],
+    )
     for decoder in (model.acc_decoder, model.gyro_decoder, model.acc_cov_decoder, model.gyro_cov_decoder):
         torch.nn.init.normal_(decoder[-1].weight, std=0.1)
     return model.eval()
@@ -234,11 +237,14 @@ def test_given_densities_the_stream_contradicts_are_warned_about(sequence, caplo
     for gyro_sigma, expect in ((0.004**0.5, True), (None, False)):
         caplog.clear()
         chosen = FuseConfig() if gyro_sigma is None else FuseConfig(gyro_noise_density=gyro_sigma)
-        fusion = OnlineFusion(None, seq.gravity, first_state(seq), dataclasses.replace(chosen, online=OnlineSettings(KEYFRAME_S)))
+        fusion = OnlineFusion(
+            None, seq.gravity, first_state(seq), dataclasses.replace(chosen, online=OnlineSettings(KEYFRAME_S))
+        )
         with caplog.at_level(logging.WARNING):
             for start in range(0, 600, BLOCK):
-                fusion.add_imu(seq.t[start : start + BLOCK], seq.gyro[start : start + BLOCK],
-                               seq.acc[start : start + BLOCK])  # fmt: skip
+                fusion.add_imu(
+                    seq.t[start : start + BLOCK], seq.gyro[start : start + BLOCK], seq.acc[start : start + BLOCK]
+                )
         assert ("gyro_noise_density 0.0632" in caplog.text and "above the white noise" in caplog.text) == expect
     with pytest.raises(ConfigError, match=r"gyro_noise_density: \[1e-06, 1e-06\] is not a gyro noise density sigma"):
         OnlineFusion(None, seq.gravity, first_state(seq), FuseConfig(gyro_noise_density=[1e-6, 1e-6]))
@@ -246,8 +252,13 @@ def test_given_densities_the_stream_contradicts_are_warned_about(sequence, caplo
 
 @pytest.mark.slow
 def test_isam2_example_runs_and_fuses():
-    run = subprocess.run([sys.executable, str(REPO / "examples" / "isam2_learned_factors.py")],
-                         capture_output=True, text=True, timeout=300, check=True)  # fmt: skip
+    run = subprocess.run(
+        [sys.executable, str(REPO / "examples" / "isam2_learned_factors.py")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=True,
+    )
     values = dict(line.split(": ", 1) for line in run.stdout.splitlines() if ": " in line)
     gps_error, fused = (float(values[key].split()[0]) for key in ("GPS alone error", "fused ATE"))
     assert fused < 0.6 * gps_error  # measured 0.351 m vs 0.852 m

@@ -47,8 +47,14 @@ def online(seq, keyframes, tol: float, smoother: str = "isam2", bias: BiasStates
     """Stream the samples up to the last keyframe in blocks, each fix once the IMU has passed it."""
     t_fix, pos_fix = fixes(seq, keyframes)
     online = OnlineSettings(keyframe_s=1.0, smoother=smoother, relinearize_threshold=1e-9, bias_relinearize_tol=tol)
-    config = FuseConfig(GYRO_SIGMA, ACC_SIGMA, estimate_bias=bias is not None, bias=bias or BIAS, online=online,
-                        graph=FusionSettings(gps_robust=None))  # fmt: skip  (Gaussian GPS factors, as GTSAM's graph)
+    config = FuseConfig(
+        GYRO_SIGMA,
+        ACC_SIGMA,
+        estimate_bias=bias is not None,
+        bias=bias or BIAS,
+        online=online,
+        graph=FusionSettings(gps_robust=None),
+    )  # Gaussian GPS factors, as GTSAM's graph
     fusion = OnlineFusion(None, seq.gravity, first_state(seq, keyframes[0]), config)
     end, fix = keyframes[-1] + 1, 0
     for start in range(keyframes[0], end, BLOCK):
@@ -146,8 +152,11 @@ def test_online_bias_on_a_real_flight_with_a_large_gyro_bias(shared_data):
     theirs = gtsams_own(seq, keyframes)
     fusion = online(seq, keyframes, tol=1e-9)
     assert largest_gap(fusion, theirs) < 1e-6
-    np.testing.assert_allclose(fusion.smoother.calculateEstimateConstantBias(B(0)).gyroscope(),
-                               theirs.atConstantBias(B(0)).gyroscope(), atol=1e-6)  # fmt: skip
+    np.testing.assert_allclose(
+        fusion.smoother.calculateEstimateConstantBias(B(0)).gyroscope(),
+        theirs.atConstantBias(B(0)).gyroscope(),
+        atol=1e-6,
+    )
 
 
 def test_bias_options_are_checked(drive):

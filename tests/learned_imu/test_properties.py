@@ -141,8 +141,12 @@ def corrupted_tables(draw, ns: bool):
     elif kind == "extra_field":
         cells.insert(col, "1.0")
     elif kind == "text":
-        cells[col] = draw(st.one_of(st.sampled_from(NOT_NUMBERS), st.text(TOKEN_CHARS, min_size=1, max_size=8)
-                                    .filter(lambda s: s.strip() and not _numpy_parses(s))))  # fmt: skip
+        cells[col] = draw(
+            st.one_of(
+                st.sampled_from(NOT_NUMBERS),
+                st.text(TOKEN_CHARS, min_size=1, max_size=8).filter(lambda s: s.strip() and not _numpy_parses(s)),
+            )
+        )
     elif kind == "empty":
         cells[col] = draw(st.sampled_from(["", " "]))
     elif kind == "not_finite":

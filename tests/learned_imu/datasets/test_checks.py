@@ -272,10 +272,13 @@ def test_flat_options_reach_the_reader_as_one_record(tmp_path, monkeypatch):
         ({"on_duplicate": 1}, "options 'on_duplicate': expected one of error, drop, got 1"),
         ({"check_frame": "no"}, "options 'check_frame': expected bool, got 'no' (str)"),
         ({"vel_window_s": 0}, "options 'vel_window_s': expected a positive number (s), got 0"),
-        ({"checks": {}}, "options 'checks': euroc has no such option; its options: check_frame, check_units, "
-                         "crop_to_gt, gravity, ground_truth, gt_file, imu_file, on_duplicate, on_gap, vel_window_s"),
+        (
+            {"checks": {}},
+            "options 'checks': euroc has no such option; its options: check_frame, check_units, "
+            "crop_to_gt, gravity, ground_truth, gt_file, imu_file, on_duplicate, on_gap, vel_window_s",
+        ),
     ],
-)  # fmt: skip
+)
 def test_config_options_are_checked_against_the_record(options, message):
     with pytest.raises(ConfigError) as err:
         SequenceConfig("euroc", "x", options)

@@ -137,7 +137,7 @@ ROWS = ["t,gx,gy,gz,ax,ay,az"] + [f"{0.005 * i:.3f},0.1,0.0,0.0,0.0,0.0,9.81" fo
     ],
 )
 def test_a_table_read_wrongly_says_what_to_change(tmp_path, name, content, field, message):
-    """Mistakes in the file itself: the refusal names the file, the field and what to change (issue 28, part 3)."""
+    """Mistakes in the file itself: the refusal names the file, the field and what to change."""
     path = tmp_path / "imu.csv"
     if content is None:
         path.write_bytes("\n".join(ROWS).encode("utf-16"))

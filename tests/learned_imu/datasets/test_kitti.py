@@ -98,7 +98,10 @@ def test_gps_fixes_all_outside_the_imu_span_name_the_file_and_both_spans(shared_
     lines = (source / "KittiGps_converted.txt").read_text().splitlines()
     shifted = [lines[0]] + [",".join([repr(float(x.split(",")[0]) + 1e5), *x.split(",")[1:]]) for x in lines[1:]]
     (tmp_path / "KittiGps_converted.txt").write_text("\n".join(shifted) + "\n")  # a clock 1e5 s off
-    with pytest.raises(DataError, match=r"KittiGps_converted.txt: field 'gps': none of the 470 GPS fixes, "
-                                        r"\[146534.4\d+, 147005.3\d+\] s, lies within the IMU's time span "
-                                        r"\[46536.3\d+, 47006.0\d+\] s"):  # fmt: skip
+    with pytest.raises(
+        DataError,
+        match=r"KittiGps_converted.txt: field 'gps': none of the 470 GPS fixes, "
+        r"\[146534.4\d+, 147005.3\d+\] s, lies within the IMU's time span "
+        r"\[46536.3\d+, 47006.0\d+\] s",
+    ):
         read_sequence("kitti", tmp_path)

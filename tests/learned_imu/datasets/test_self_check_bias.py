@@ -20,15 +20,24 @@ FLIGHTS = (
     "V2_01_easy",
     "V2_02_medium",
     "V2_03_difficult",
-)  # fmt: skip  (every shared flight with its IMU)
+)  # every shared flight with its IMU
 
 
 def _check(seq, acc=None, gyro=None, pos=None) -> None:
     gt = seq.gt
     check_frame(
-        seq.t, seq.gyro if gyro is None else gyro, seq.acc if acc is None else acc, gt.rot, gt.valid, seq.gravity,
-        seq.source, "gt", gt.vel, pos=gt.pos if pos is None else pos, vel_given=True,
-    )  # fmt: skip
+        seq.t,
+        seq.gyro if gyro is None else gyro,
+        seq.acc if acc is None else acc,
+        gt.rot,
+        gt.valid,
+        seq.gravity,
+        seq.source,
+        "gt",
+        gt.vel,
+        pos=gt.pos if pos is None else pos,
+        vel_given=True,
+    )
 
 
 @pytest.mark.slow
@@ -80,12 +89,26 @@ def test_positions_in_mm_on_a_parked_car_are_refused(shared_data):
     gt = seq.gt
 
     def run(scale: float) -> None:
-        check_frame(seq.t, seq.gyro, seq.acc, gt.rot, gt.valid, seq.gravity, seq.source, "gt", gt.vel,
-                    pos=gt.pos * scale, vel_given=True, interval_s=0.3)  # fmt: skip
+        check_frame(
+            seq.t,
+            seq.gyro,
+            seq.acc,
+            gt.rot,
+            gt.valid,
+            seq.gravity,
+            seq.source,
+            "gt",
+            gt.vel,
+            pos=gt.pos * scale,
+            vel_given=True,
+            interval_s=0.3,
+        )
 
     run(1.0)
-    expected = (r"field 'gt.pos': motion self-check failed: .* displacement is 36\d(\.\d)? m rms while that of the "
-                r"integrated velocity is 0.0\d+ m: positions in mm or cm")
+    expected = (
+        r"field 'gt.pos': motion self-check failed: .* displacement is 36\d(\.\d)? m rms while that of the "
+        r"integrated velocity is 0.0\d+ m: positions in mm or cm"
+    )
     with pytest.raises(DataError, match=expected):
         run(1000.0)
 

@@ -70,14 +70,21 @@ def test_a_small_tumvi_config_runs_the_ablation_end_to_end(shared_data, tmp_path
     def room(n, span):
         return {"dataset": "tumvi", "path": f"tumvi/dataset-room{n}_512_16", "span": span}
 
-    config = from_dict(ExperimentConfig, {
-        "name": "tumvi_small",
-        "data": {"root": str(shared_data), "train": [room(1, [0.0, 0.2])], "val": [room(3, [0.0, 0.1])],
-                 "evaluate": [room(2, [0.3, 0.5])]},
-        "model": {"conv_channels": [8, 16], "gru_sizes": [16], "decoder_hidden": 16},
-        "train": {"window": 200, "every": 50, "batch_size": 16, "epochs": 1, "calibration_steps": 5},
-        "evaluation": {"interval": 200, "interval_unit": "frames", "frames": 0},
-    })  # fmt: skip
+    config = from_dict(
+        ExperimentConfig,
+        {
+            "name": "tumvi_small",
+            "data": {
+                "root": str(shared_data),
+                "train": [room(1, [0.0, 0.2])],
+                "val": [room(3, [0.0, 0.1])],
+                "evaluate": [room(2, [0.3, 0.5])],
+            },
+            "model": {"conv_channels": [8, 16], "gru_sizes": [16], "decoder_hidden": 16},
+            "train": {"window": 200, "every": 50, "batch_size": 16, "epochs": 1, "calibration_steps": 5},
+            "evaluation": {"interval": 200, "interval_unit": "frames", "frames": 0},
+        },
+    )
     rows = ablate(config, tmp_path / "ablate", progress=False)
     assert [r.variant for r in rows] == [v.name for v in TUMVI_VARIANTS]
     by = {r.variant: r for r in rows}

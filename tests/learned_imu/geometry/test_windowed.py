@@ -62,10 +62,12 @@ def test_every_window_equals_per_window_on_a_real_flight(shared_data):
     seq = read_sequence("euroc", shared_data / "euroc/V1_03_difficult")  # the most aggressive shared flight
     part = slice(8000, 11000)  # 15 s of it
     samples = (
-        torch.as_tensor(seq.gyro[part])[None], torch.as_tensor(seq.acc[part])[None],
-        torch.as_tensor(seq.dt[part])[None], torch.full((1, 3000, 3), 2.9e-8, dtype=F64),
+        torch.as_tensor(seq.gyro[part])[None],
+        torch.as_tensor(seq.acc[part])[None],
+        torch.as_tensor(seq.dt[part])[None],
+        torch.full((1, 3000, 3), 2.9e-8, dtype=F64),
         torch.full((1, 3000, 3), 4e-6, dtype=F64),
-    )  # fmt: skip
+    )
     starts = torch.arange(0, 2001, 10)
     ours = preintegrate_windows(*samples[:3], starts, 1000, 50, *samples[3:])
     for i in (0, 77, 200):
@@ -76,8 +78,10 @@ def test_gradients_equal_the_per_window_gradients():
     samples = tuple(x.requires_grad_() for x in chunk(1, batch=1, n=900))
     length, every, starts = 400, 50, torch.arange(0, 501, 25)
     g = torch.Generator().manual_seed(2)
-    weights = {name: torch.randn(1, len(starts), length // every, *shape, generator=g, dtype=F64)
-               for name, shape in (("rot", (3, 3)), ("vel", (3,)), ("pos", (3,)), ("cov", (9, 9)))}  # fmt: skip
+    weights = {
+        name: torch.randn(1, len(starts), length // every, *shape, generator=g, dtype=F64)
+        for name, shape in (("rot", (3, 3)), ("vel", (3,)), ("pos", (3,)), ("cov", (9, 9)))
+    }
 
     def loss_of(pre, i=None):
         pick = (lambda w: w) if i is None else (lambda w: w[:, i])
@@ -192,8 +196,12 @@ def test_float64_by_default_and_what_float32_would_lose(shared_data):
     assert 1e-4 < lost < 5e-3  # m
     cov = (torch.full((1, 4000, 3), 2.9e-8), torch.full((1, 4000, 3), 4e-6))
     ours = preintegrate_windows(*(x.float() for x in samples64), starts, 1000, 50, *cov, dtype=torch.float32)
-    reference = preintegrate(*(x[:, 3000:4000].float().double() for x in samples64), cov[0][:, :1000].double(),
-                             cov[1][:, :1000].double(), at=slice(49, None, 50))  # fmt: skip
+    reference = preintegrate(
+        *(x[:, 3000:4000].float().double() for x in samples64),
+        cov[0][:, :1000].double(),
+        cov[1][:, :1000].double(),
+        at=slice(49, None, 50),
+    )
     assert ours.cov.dtype == F64 and relative(ours.cov[:, -1], reference.cov) < 1e-4  # 3e-5: float32 rotations
 
 

@@ -60,8 +60,9 @@ def onnx_session(path) -> ort.InferenceSession:
 
 def zero_state(session, batch: int) -> dict[str, np.ndarray]:
     """The exported step's initial state, from the input declarations alone (as a user without torch would)."""
-    return {i.name: np.zeros([batch if d == "batch" else d for d in i.shape], np.float32)
-            for i in session.get_inputs()[2:]}  # fmt: skip
+    return {
+        i.name: np.zeros([batch if d == "batch" else d for d in i.shape], np.float32) for i in session.get_inputs()[2:]
+    }
 
 
 def run_onnx(session, gyro: np.ndarray, acc: np.ndarray, chunks) -> tuple[list[np.ndarray], dict]:

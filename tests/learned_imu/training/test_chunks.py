@@ -235,8 +235,9 @@ def test_chunk_offsets_own_every_grid_start_exactly_once():
     make_windows would cut (``context + k stride``, ``s + length <= n - 1``) is owned by exactly one chunk, no other
     start by any; where no chunk fits there is none."""
     cases = 0
-    for n, length, stride, context, extra in itertools.product(range(2, 48), range(1, 9), range(1, 5), range(4),
-                                                               range(4)):  # fmt: skip
+    for n, length, stride, context, extra in itertools.product(
+        range(2, 48), range(1, 9), range(1, 5), range(4), range(4)
+    ):
         chunk = length + extra * stride
         offsets, owned = chunk_offsets(n, chunk, length, stride, context)
         assert offsets.shape == owned.shape
@@ -267,9 +268,14 @@ def short_chunks(mh01):
 
 def tensors(c: Chunks) -> dict[str, torch.Tensor]:
     return {
-        "gyro": c.gyro, "acc": c.acc, "dt": c.dt, "valid": c.valid, "gravity_imu": c.gravity_imu,
-        "rotation": c.rotation, **{f"truth.{f}": getattr(c.truth, f) for f in ("rot", "vel", "pos", "dt")},
-    }  # fmt: skip
+        "gyro": c.gyro,
+        "acc": c.acc,
+        "dt": c.dt,
+        "valid": c.valid,
+        "gravity_imu": c.gravity_imu,
+        "rotation": c.rotation,
+        **{f"truth.{f}": getattr(c.truth, f) for f in ("rot", "vel", "pos", "dt")},
+    }
 
 
 def test_select_to_double_and_concat_keep_shapes_and_masks(short_chunks):

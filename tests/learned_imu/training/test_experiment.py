@@ -434,6 +434,9 @@ def test_no_window_to_train_names_the_key_the_window_and_the_sequences(tmp_path)
     with pytest.raises(ConfigError, match=r"data.train: no sequence listed"):
         train_run(empty, tmp_path / "empty", progress=False)
     long = dataclasses.replace(TINY, train=dataclasses.replace(TINY.train, window=5000, every=50))
-    with pytest.raises(InputError, match=r"train.window = 5000 samples: no window .* in data.train: "
-                                         r"sim_drone_consumer_seed1 \(3200 samples, 3200 with ground truth\)"):
+    with pytest.raises(
+        InputError,
+        match=r"train.window = 5000 samples: no window .* in data.train: "
+        r"sim_drone_consumer_seed1 \(3200 samples, 3200 with ground truth\)",
+    ):
         train_run(long, tmp_path / "long", progress=False)

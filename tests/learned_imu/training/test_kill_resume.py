@@ -151,8 +151,9 @@ def test_sigkill_at_the_worst_moments_of_an_epochs_writes(tmp_path, moment):
     an epoch, and must not leave the half-written temporary behind."""
     cmd, run = train_command(tmp_path), tmp_path / "run"
     kill_epoch = 2
-    proc = subprocess.run([sys.executable, "-c", KILL_HOOK, moment, str(kill_epoch), *cmd[1:]],
-                          capture_output=True, timeout=TIMEOUT_S)  # fmt: skip
+    proc = subprocess.run(
+        [sys.executable, "-c", KILL_HOOK, moment, str(kill_epoch), *cmd[1:]], capture_output=True, timeout=TIMEOUT_S
+    )
     assert proc.returncode == -signal.SIGKILL, proc.stderr.decode()[-2000:]
     before = metrics(run)
     done = load_checkpoint(run / "last.pt").trainer["epochs_done"]
@@ -171,8 +172,11 @@ def test_sigkill_after_the_calibrated_best_checkpoint_does_not_calibrate_twice(t
     import torch
 
     cmd, run = train_command(tmp_path), tmp_path / "run"
-    proc = subprocess.run([sys.executable, "-c", KILL_HOOK, "after_calibrated_best", "0", *cmd[1:]],
-                          capture_output=True, timeout=TIMEOUT_S)  # fmt: skip
+    proc = subprocess.run(
+        [sys.executable, "-c", KILL_HOOK, "after_calibrated_best", "0", *cmd[1:]],
+        capture_output=True,
+        timeout=TIMEOUT_S,
+    )
     assert proc.returncode == -signal.SIGKILL, proc.stderr.decode()[-2000:]
     calibrated = load_checkpoint(run / "best.pt")
     assert calibrated.best.calibrated and not load_checkpoint(run / "last.pt").best.calibrated
@@ -187,6 +191,7 @@ def test_sigkill_after_the_calibrated_best_checkpoint_does_not_calibrate_twice(t
 # Child process: an export written to a slow device (every write paced at 4 MB/s), killed by the parent mid-write.
 SLOW_EXPORT = """
 import contextlib, sys, time
+import airimu_core.io
 import learned_imu.export as export
 from learned_imu.datasets.simulator import ImuErrorModel, simulate
 
@@ -199,14 +204,14 @@ class SlowFile:
     def __getattr__(self, name):
         return getattr(self._f, name)
 
-real_atomic_file = export.atomic_file
+real_atomic_file = airimu_core.io.atomic_file  # what airimu_core.export.save_export writes through
 
 @contextlib.contextmanager
 def slow_atomic_file(path, mode="w"):
     with real_atomic_file(path, mode) as f:
         yield SlowFile(f)
 
-export.atomic_file = slow_atomic_file
+airimu_core.io.atomic_file = slow_atomic_file
 seq = simulate("drone", duration_s=60.0, error_model=ImuErrorModel(1e-4, 1e-3, 0.0, 0.0, 0.0, 0.0), seed=9)
 export.export_preintegration(sys.argv[1], seq, export.keyframes_every(seq, 0.1), 1e-8, 1e-6)
 """

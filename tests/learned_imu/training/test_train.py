@@ -58,9 +58,13 @@ def stretch(sim, first: int, last: int) -> ImuSequence:
     seq, gt = sim.sequence, sim.sequence.gt
     part = slice(first, last)
     return ImuSequence(
-        name=f"{seq.name}[{first}:{last}]", t=seq.t[part], gyro=seq.gyro[part], acc=seq.acc[part], gravity=seq.gravity,
+        name=f"{seq.name}[{first}:{last}]",
+        t=seq.t[part],
+        gyro=seq.gyro[part],
+        acc=seq.acc[part],
+        gravity=seq.gravity,
         gt=GroundTruth(gt.rot[part], gt.pos[part], gt.vel[part], gt.valid[part]),
-    )  # fmt: skip
+    )
 
 
 @pytest.mark.slow

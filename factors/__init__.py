@@ -7,6 +7,7 @@ from factors.export_file import from_export
 from factors.gps import GpsFactor, gps_noise
 from factors.imu import LearnedImuFactor
 from factors.learned_pim import learned_combined_pim, learned_pim
+from factors.motion import MotionFactor, MotionTerms, motion_factors, solve_with_python_factors
 from factors.pim_from_deltas import pim_from_deltas  # the function (the module stays importable)
 from factors.relinearise import Relinearised, solve_relinearised
 
@@ -17,6 +18,8 @@ __all__ = [
     "GpsFactor",
     "GraphError",
     "LearnedImuFactor",
+    "MotionFactor",
+    "MotionTerms",
     "PimLayoutError",
     "Relinearised",
     "check_anchored",
@@ -27,6 +30,8 @@ __all__ = [
     "learned_combined_pim",
     "learned_pim",
     "load_export",
+    "motion_factors",
     "pim_from_deltas",
     "solve_relinearised",
+    "solve_with_python_factors",
 ]

@@ -28,6 +28,8 @@ DEVICES = typing.get_args(Device)
 INTERVAL_UNITS = typing.get_args(IntervalUnit)
 WindowRule = Literal["valid", "end_valid"]  # learned_imu.evaluation.evaluate's ``windows``
 WINDOW_RULES = typing.get_args(WindowRule)
+TrainedModel = Literal["correction", "motion"]  # train.model: which network a run trains
+TRAINED_MODELS = typing.get_args(TrainedModel)
 
 
 def _check(record, key: str, ok, expected: str) -> None:
@@ -114,6 +116,51 @@ class ModelConfig:
 
 
 @dataclass(frozen=True)
+class MotionConfig:
+    """The motion model (``learned_imu.network.motion.MotionNet``'s arguments) and its training chunks
+    (``learned_imu.training.motion``), trained when ``train.model`` is ``motion``. Sizes in IMU samples, each of
+    ``chunk``, ``context``, ``stride`` and ``val_stride`` a whole number of blocks (``stride ** len(conv_channels)``,
+    9 by default: one velocity every 9 samples)."""
+
+    conv_channels: tuple[int, ...] = (32, 64)
+    kernel_size: int = 7
+    stride: int = 3
+    gru_sizes: tuple[int, ...] = (128, 128)
+    decoder_hidden: int = 64
+    dropout: float = 0.1
+    init_var: float = 0.1  # (m/s)^2, the untrained model's velocity variance
+    chunk: int = 1800  # samples supervised per chunk
+    context: int = 180  # samples before them that warm the GRUs up, unsupervised
+    chunk_stride: int = 450  # distance between training chunk starts
+    val_chunk_stride: int = 1800  # between validation chunk starts
+    tilt_noise_deg: float = 2.0  # one-sigma tilt of each training chunk's attitude (learned_imu.training.motion)
+    covariance: float = 0.1  # weight of the variance's negative log-likelihood in the loss
+
+    @property
+    def block(self) -> int:
+        return self.stride ** len(self.conv_channels)
+
+    def __post_init__(self):
+        for key in ("conv_channels", "gru_sizes"):
+            _check(self, f"motion.{key}", lambda v: len(v) >= 1 and all(int(c) >= 1 for c in v), "positive sizes")
+        for key in ("kernel_size", "stride", "decoder_hidden"):
+            _check(self, f"motion.{key}", lambda v: v >= 1, "a positive whole number")
+        _check(self, "motion.stride", lambda v: v <= self.kernel_size, "at most motion.kernel_size")
+        _check(self, "motion.dropout", lambda v: 0.0 <= v < 1.0, "in [0, 1)")
+        _check(self, "motion.init_var", _positive, "a positive variance, (m/s)^2")
+        for key in ("chunk", "chunk_stride", "val_chunk_stride"):
+            _check(
+                self,
+                f"motion.{key}",
+                lambda v: v >= self.block and v % self.block == 0,
+                f"a positive multiple of {self.block}",
+            )
+        _check(self, "motion.context", lambda v: v >= 0 and v % self.block == 0, f"a multiple of {self.block} >= 0")
+        _check(self, "motion.tilt_noise_deg", lambda v: 0.0 <= v <= 45.0, "in [0, 45] degrees")
+        _check(self, "motion.covariance", _non_negative, "a weight >= 0")
+
+
+@dataclass(frozen=True)
 class LossConfig:
     """``LossWeights``: Huber weights per block and epsilon for the covariance NLL (paper 1e-3)."""
 
@@ -134,6 +181,10 @@ class LossConfig:
 @dataclass(frozen=True)
 class TrainConfig:
     """Windows, optimiser and schedule. ``window`` and ``every`` and ``stride`` are in IMU samples."""
+
+    # which network the run trains: "correction" (AirImuNet: corrections and noise, the windows below) or "motion"
+    # (MotionNet: body-frame velocity, the chunks of the motion section); the optimiser and schedule are shared
+    model: TrainedModel = "correction"
 
     window: int = 1000
     every: int = 50  # supervise every k-th sample of a window (official default 50)
@@ -173,6 +224,7 @@ class TrainConfig:
 
     def __post_init__(self):
         _check(self, "train.device", lambda v: v in DEVICES, f"one of {', '.join(DEVICES)}")
+        _check(self, "train.model", lambda v: v in TRAINED_MODELS, f"one of {', '.join(TRAINED_MODELS)}")
         _check(self, "train.window", lambda v: v >= 2, "at least 2 samples")
         _check(self, "train.every", lambda v: 1 <= v <= self.window, f"in [1, train.window = {self.window}]")
         for key in ("stride", "val_stride", "context", "plateau_patience", "early_stop_patience", "calibration_steps"):
@@ -221,6 +273,7 @@ class ExperimentConfig:
     name: str
     data: DataConfig
     model: ModelConfig = ModelConfig()
+    motion: MotionConfig = MotionConfig()
     loss: LossConfig = LossConfig()
     train: TrainConfig = TrainConfig()
     evaluation: EvaluationConfig = EvaluationConfig()

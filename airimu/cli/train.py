@@ -116,24 +116,40 @@ def train(
     data_root: str = typer.Option(None, help="folder the config's sequence paths are relative to"),
     epochs: int = typer.Option(None, help="override train.epochs"),
     device: str = typer.Option(None, help="override train.device: cpu, cuda or auto"),
+    model: str = typer.Option(
+        None,
+        help="override train.model: correction (AirIMU), motion (body-frame velocity) or both (into "
+        "OUT/correction and OUT/motion)",
+    ),
     progress: bool = typer.Option(True, help="show progress bars"),
 ) -> None:
-    """Train AirIMU (corrections + uncertainty) into a run folder: config.yaml, metrics.jsonl, best.pt, last.pt.
-    Launched by torchrun (README: several processes or machines), the processes share each batch."""
+    """Train AirIMU (corrections + uncertainty) or the motion model (body-frame velocity + variance) into a run
+    folder: config.yaml, metrics.jsonl, best.pt, last.pt. Launched by torchrun (README: several processes or
+    machines), the processes share each batch."""
+    import dataclasses
+    from pathlib import Path
+
     from airimu.viz.recording import write_training_recording
+    from learned_imu.config import TRAINED_MODELS
     from learned_imu.training.distributed import process_group
     from learned_imu.training.experiment import train_run
 
+    if model is not None and model not in (*TRAINED_MODELS, "both"):
+        raise typer.BadParameter(f"--model must be one of {', '.join(TRAINED_MODELS)}, both; got {model!r}")
     cfg = _overrides(_load_config(config, data_root), epochs, device)
     _check_outputs(folders={"--out": out})
-    with process_group() as world:  # out/training.rrd: the losses and validation metrics in Rerun, every epoch
-        summary = train_run(cfg, out, progress=progress, world=world, on_epoch=write_training_recording)
-    if world is not None and not world.writer:
-        return
-    _wide_console().print(
-        f"{summary.epochs} epochs; best validation loss {summary.best_val_loss:.5f} at epoch {summary.best_epoch} "
-        f"({summary.seconds_to_best:.0f} s of training); run folder: {summary.folder}"
-    )
+    kinds = TRAINED_MODELS if model == "both" else (model or cfg.train.model,)
+    for kind in kinds:
+        run = dataclasses.replace(cfg, train=dataclasses.replace(cfg.train, model=kind))
+        folder = Path(out) / kind if model == "both" else Path(out)
+        with process_group() as world:  # training.rrd: the losses and validation metrics in Rerun, every epoch
+            summary = train_run(run, folder, progress=progress, world=world, on_epoch=write_training_recording)
+        if world is not None and not world.writer:
+            continue
+        _wide_console().print(
+            f"{kind} model: {summary.epochs} epochs; best validation loss {summary.best_val_loss:.5f} at epoch "
+            f"{summary.best_epoch} ({summary.seconds_to_best:.0f} s of training); run folder: {summary.folder}"
+        )
 
 
 @app.command("ablate-imu")

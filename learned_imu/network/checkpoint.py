@@ -32,8 +32,9 @@ import torch
 from airimu_core.config import from_dict, renamed, to_dict
 from airimu_core.errors import ConfigError, DataError, InputError
 from airimu_core.io import atomic_file
-from learned_imu.config import ExperimentConfig, ModelConfig
+from learned_imu.config import ExperimentConfig, ModelConfig, MotionConfig
 from learned_imu.network.model import AirImuNet
+from learned_imu.network.motion import MotionNet
 
 
 @dataclass(frozen=True)
@@ -122,11 +123,35 @@ class Checkpoint:
         """This checkpoint with other model weights (a calibrated or rescaled model), the rest of the trainer kept."""
         return dataclasses.replace(self, trainer={**self.trainer, "model": weights})
 
+    @property
+    def kind(self) -> str:
+        """Which network it holds: ``"correction"`` (``AirImuNet``) or ``"motion"`` (``MotionNet``)."""
+        return self.config.train.model
+
     def model(self, source: str | Path = "checkpoint") -> AirImuNet:
         """The network of the stored config with the stored weights, in eval mode, with ``trained_on`` and
         ``removes_gravity`` (``train.remove_gravity``) attached for ``learned_imu.network.inference.correct``;
-        weights that do not fit the config or hold NaN/Inf are a ``DataError`` naming ``source`` (the file)."""
-        model = build_model(self.config.model)
+        weights that do not fit the config or hold NaN/Inf are a ``DataError`` naming ``source`` (the file), and so
+        is a motion model's checkpoint (``motion_model``)."""
+        self._expect("correction", source)
+        model = self._loaded(build_model(self.config.model), source)
+        model.removes_gravity = self.config.train.remove_gravity
+        return model
+
+    def motion_model(self, source: str | Path = "checkpoint") -> MotionNet:
+        """The motion model (``learned_imu.network.motion``) of a ``train.model: motion`` checkpoint, in eval mode,
+        ``trained_on`` attached; checked as ``model`` is."""
+        self._expect("motion", source)
+        return self._loaded(build_motion_model(self.config.motion), source)
+
+    def _expect(self, kind: str, source) -> None:
+        if self.kind != kind:
+            use = "motion_from_checkpoint (airimu fuse --motion)" if self.kind == "motion" else "model_from_checkpoint"
+            raise DataError(
+                source, "config.train.model", f"holds a {self.kind} model, not a {kind} model: load it with {use}"
+            )
+
+    def _loaded(self, model, source):
         try:
             model.load_state_dict(self.trainer["model"])
         except (KeyError, RuntimeError) as error:
@@ -137,7 +162,6 @@ class Checkpoint:
                     source, f"trainer.model.{name}", "holds NaN or Inf weights (a diverged or damaged model)"
                 )
         model.trained_on = self.trained_on
-        model.removes_gravity = self.config.train.remove_gravity
         return model.eval()
 
 
@@ -207,6 +231,12 @@ def model_from_checkpoint(path: str | Path) -> tuple[AirImuNet, ExperimentConfig
     return checkpoint.model(path), checkpoint.config
 
 
+def motion_from_checkpoint(path: str | Path) -> tuple[MotionNet, ExperimentConfig]:
+    """The trained motion model (eval mode, ``trained_on`` attached) and the resolved config stored with it."""
+    checkpoint = load_checkpoint(path)
+    return checkpoint.motion_model(path), checkpoint.config
+
+
 def _stored_config(data, path: Path) -> ExperimentConfig:
     if not isinstance(data, dict):
         raise DataError(path, "config", f"expected a mapping, got {type(data).__name__}")
@@ -271,4 +301,17 @@ def build_model(config: ModelConfig) -> AirImuNet:
         gyro_scale_rad_s=config.gyro_scale_rad_s,
         init_gyro_cov=config.init_gyro_cov,
         init_acc_cov=config.init_acc_cov,
+    )
+
+
+def build_motion_model(config: MotionConfig) -> MotionNet:
+    """``MotionNet`` from its config."""
+    return MotionNet(
+        conv_channels=config.conv_channels,
+        kernel_size=config.kernel_size,
+        stride=config.stride,
+        gru_sizes=config.gru_sizes,
+        decoder_hidden=config.decoder_hidden,
+        dropout=config.dropout,
+        init_var=config.init_var,
     )

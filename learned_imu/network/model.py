@@ -162,20 +162,12 @@ class AirImuNet(nn.Module):
         _check(gyro, acc)
         seen = acc if gravity_imu is None else acc + gravity_imu
         x = self._inputs(_pad_to_block(gyro, self.block), _pad_to_block(seen, self.block))
-        for conv in self.convs:
-            x = conv(nn.functional.pad(x, (self.pad, 0)))
-        features = x.mT
-        for gru in self.grus:
-            features, _ = gru(features)
-        return self._decode(features, gyro, acc)
+        return self._decode(encode(self.convs, self.grus, self.pad, x), gyro, acc)
 
     def initial_state(self, batch: int = 1) -> StreamState:
         """State before the first chunk: zero conv histories (the one-pass left padding), zero GRU states."""
-        p = next(self.parameters())
-        like = {"dtype": p.dtype, "device": p.device}
-        histories = tuple(torch.zeros(batch, conv[0].in_channels, self.pad, **like) for conv in self.convs)
-        hidden = tuple(torch.zeros(1, batch, gru.hidden_size, **like) for gru in self.grus)
-        empty = torch.zeros(batch, 0, 3, **like)
+        histories, hidden = initial_encoder_state(self.convs, self.grus, self.pad, batch)
+        empty = histories[0].new_zeros(batch, 0, 3)
         return StreamState(histories, hidden, empty, empty)
 
     def stream(
@@ -202,17 +194,11 @@ class AirImuNet(nn.Module):
             empty = gyro[:, :0]
             return Correction(*[empty] * 6), StreamState(state.conv_history, state.gru_hidden, gyro, acc)
         x = self._inputs(_pad_to_block(gyro[:, :ready], self.block), _pad_to_block(acc[:, :ready], self.block))
-        histories = []
-        for conv, history in zip(self.convs, state.conv_history, strict=True):
-            x = torch.cat([history, x], dim=-1)
-            histories.append(x[..., x.shape[-1] - self.pad :].clone())
-            x = conv(x)
-        features, hidden = x.mT, []
-        for gru, h in zip(self.grus, state.gru_hidden, strict=True):
-            features, h = gru(features, h)
-            hidden.append(h)
+        features, histories, hidden = encode_stream(
+            self.convs, self.grus, self.pad, x, state.conv_history, state.gru_hidden
+        )
         out = self._decode(features, gyro[:, :ready], acc[:, :ready])
-        return out, StreamState(tuple(histories), tuple(hidden), gyro[:, ready:], acc[:, ready:])
+        return out, StreamState(histories, hidden, gyro[:, ready:], acc[:, ready:])
 
     def _inputs(self, gyro: torch.Tensor, acc: torch.Tensor) -> torch.Tensor:
         """(B, N, 3) raw samples -> (B, 6, N) network input [acc / scale, gyro]."""
@@ -237,6 +223,42 @@ class AirImuNet(nn.Module):
             gyro_cov=per_sample(torch.exp(log_gyro + self.log_init_gyro_density)),
             acc_cov=per_sample(torch.exp(log_acc + self.log_init_acc_density)),
         )
+
+
+def encode(convs: nn.ModuleList, grus: nn.ModuleList, pad: int, x: torch.Tensor) -> torch.Tensor:
+    """The causal encoder in one pass from rest: (B, C, N) inputs, N a whole number of blocks -> (B, N / block, F)
+    features (each convolution left-padded by ``pad`` zeros, then the stacked GRUs from zero states)."""
+    for conv in convs:
+        x = conv(nn.functional.pad(x, (pad, 0)))
+    features = x.mT
+    for gru in grus:
+        features, _ = gru(features)
+    return features
+
+
+def initial_encoder_state(convs: nn.ModuleList, grus: nn.ModuleList, pad: int, batch: int):
+    """``encode_stream``'s state before the first chunk: zero convolution histories (the one-pass left padding)
+    and zero GRU states."""
+    p = next(convs.parameters())
+    like = {"dtype": p.dtype, "device": p.device}
+    histories = tuple(torch.zeros(batch, conv[0].in_channels, pad, **like) for conv in convs)
+    hidden = tuple(torch.zeros(1, batch, gru.hidden_size, **like) for gru in grus)
+    return histories, hidden
+
+
+def encode_stream(convs: nn.ModuleList, grus: nn.ModuleList, pad: int, x: torch.Tensor, histories, hidden):
+    """``encode`` continued from a stream state: the features of the next whole blocks, and the new convolution
+    histories and GRU states (bounded: they do not grow with time)."""
+    new_histories = []
+    for conv, history in zip(convs, histories, strict=True):
+        x = torch.cat([history, x], dim=-1)
+        new_histories.append(x[..., x.shape[-1] - pad :].clone())
+        x = conv(x)
+    features, new_hidden = x.mT, []
+    for gru, h in zip(grus, hidden, strict=True):
+        features, h = gru(features, h)
+        new_hidden.append(h)
+    return features, tuple(new_histories), tuple(new_hidden)
 
 
 def device_of(module: nn.Module) -> torch.device:

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import sys
 import time
 from collections.abc import Callable
@@ -47,6 +48,7 @@ from learned_imu.network.checkpoint import (
     Checkpoint,
     TrainedOn,
     build_model,
+    build_motion_model,
     load_checkpoint,
     save_checkpoint,
 )
@@ -55,6 +57,7 @@ from learned_imu.network.model import AirImuNet
 from learned_imu.training.chunks import concat_chunks, make_chunks
 from learned_imu.training.distributed import World, agree, barrier, check_batch_size, is_writer
 from learned_imu.training.losses import LossWeights
+from learned_imu.training.motion import MotionChunks, concat_motion_chunks, make_motion_chunks
 from learned_imu.training.train import (
     EpochLog,
     Trainer,
@@ -167,6 +170,29 @@ def build_windows(
     return concat_chunks(parts) if train.chunk else concat_windows(parts)
 
 
+def build_motion_chunks(
+    sequences: list[ImuSequence], config: ExperimentConfig, stride: int, key: str = "data.train"
+) -> MotionChunks:
+    """The motion model's chunks of every sequence (``learned_imu.training.motion``), concatenated; a sequence
+    without a usable chunk is skipped with a warning, none at all is an error naming ``key`` and ``motion.chunk``."""
+    m = config.motion
+    if not sequences:
+        raise ConfigError(f"{key}: no sequence listed (training needs at least one)")
+    parts = []
+    for s in sequences:
+        part = make_motion_chunks(s, m.chunk, stride, m.context, m.block, math.radians(m.tilt_noise_deg), True)
+        if part is None:
+            log.warning("%s: no usable chunk of %d samples (gaps, invalid truth); skipped", s.name, m.context + m.chunk)
+        else:
+            parts.append(part)
+    if not parts:
+        raise InputError(
+            f"motion.chunk = {m.chunk} (+ motion.context = {m.context}) samples: no chunk without a gap or invalid "
+            f"ground truth in {key}; a shorter motion.chunk or sequences with more ground truth"
+        )
+    return concat_motion_chunks(parts)
+
+
 def loss_weights(config: ExperimentConfig) -> LossWeights:
     return LossWeights(**asdict(config.loss))
 
@@ -212,16 +238,27 @@ def _train_run(config: ExperimentConfig, folder: Path, progress: bool, world: Wo
     val_seqs = load_sequences(config.data.val, config.data.root)
     t = config.train
     torch.manual_seed(t.seed)
-    model = build_model(config.model)
-    use_cov = config.loss.covariance > 0
+    motion = t.model == "motion"
+    if motion:  # the motion model: body-frame velocity from chunks (learned_imu.training.motion)
+        model = build_motion_model(config.motion)
+        use_cov = config.motion.covariance > 0
+        weights = LossWeights(covariance=config.motion.covariance)
+        train_data = build_motion_chunks(train_seqs, config, config.motion.chunk_stride)
+        val_data = build_motion_chunks(val_seqs, config, config.motion.val_chunk_stride, "data.val")
+    else:
+        model = build_model(config.model)
+        use_cov = config.loss.covariance > 0
+        weights = loss_weights(config)
+        train_data = build_windows(train_seqs, config, t.stride or None)
+        val_data = build_windows(val_seqs, config, t.val_stride or None, "data.val")
     trainer = Trainer(
         model,
-        build_windows(train_seqs, config, t.stride or None),
-        build_windows(val_seqs, config, t.val_stride or None, "data.val"),
+        train_data,
+        val_data,
         batch_size=t.batch_size,
         lr=t.lr,
         weight_decay=t.weight_decay,
-        weights=loss_weights(config),
+        weights=weights,
         use_covariance=use_cov,
         plateau_factor=t.plateau_factor,
         plateau_patience=t.plateau_patience,
@@ -243,7 +280,7 @@ def _train_run(config: ExperimentConfig, folder: Path, progress: bool, world: Wo
     clock = time.perf_counter() - ((history[-1].seconds or 0.0) if history else 0.0)
     while trainer.epochs_done < t.epochs and not _stalled(history, best, t.early_stop_patience):
         entry = trainer.epoch(on_batch=_progress_bar(progress and writer, trainer, history))
-        if writer:  # the other ranks go on to the next epoch and wait for rank 0 in its first step
+        if writer and not motion:  # the other ranks go on to the next epoch and wait for rank 0 in its first step
             with trainer.averaged():
                 metrics = [evaluate_model(model, s, config) for s in val_seqs]
             entry = replace(
@@ -262,7 +299,7 @@ def _train_run(config: ExperimentConfig, folder: Path, progress: bool, world: Wo
             if progress:
                 _epoch_line(config.name, entry, t.epochs)
         log.info("%s epoch %d: %s", config.name, entry.epoch, json.dumps(entry.to_dict()))
-    if writer and use_cov:
+    if writer and use_cov and not motion:  # the motion model's variance is trained with it (its NLL term)
         _finish_calibration(folder, config, best, trained_on, trainer)
     barrier(world)  # every rank returns once the folder is complete
     return RunSummary(folder, trainer.epochs_done, best.epoch, best.val_loss, best.seconds)

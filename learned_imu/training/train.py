@@ -31,11 +31,13 @@ from learned_imu.training.losses import (
     normalised_squared_errors_of_variance,
     total_loss,
 )
+from learned_imu.training.motion import MotionChunks
 from learned_imu.training.windows import Windows
 
-TrainingData = Windows | Chunks
+TrainingData = Windows | Chunks | MotionChunks
 """What the trainer steps over: windows, each integrated on its own, or chunks whose windows come from one pass
-(``learned_imu.training.chunks``); both offer ``len``, ``select``, ``to``, ``correct`` and ``errors``."""
+(``learned_imu.training.chunks``), both offering ``len``, ``select``, ``to``, ``correct`` and ``errors``; or a
+motion model's chunks (``learned_imu.training.motion``), which compute their own ``loss``."""
 
 log = logging.getLogger(__name__)
 
@@ -79,7 +81,9 @@ def window_loss(
     model: torch.nn.Module, batch: TrainingData, weights: LossWeights, use_covariance: bool = True
 ) -> torch.Tensor:
     """Loss of ``model`` (an ``AirImuNet`` or its DDP wrapper) on a batch of windows or chunks, a mean over its
-    windows (see the module docstring)."""
+    windows (see the module docstring); a motion model's on its chunks (``learned_imu.training.motion``)."""
+    if isinstance(batch, MotionChunks):
+        return batch.loss(model, weights.covariance, use_covariance)
     out = batch.correct(model)
     densities = (out.gyro_cov, out.acc_cov) if use_covariance else (None, None)
     errors, variance = batch.errors(out, *densities)

@@ -1,0 +1,296 @@
+"""Learned body-frame velocity factor on a pose and its world-frame velocity: ``MotionFactor``, ``motion_factors``.
+
+Keys as ``gtsam.ImuFactor`` uses them: ``X(i)`` (``Pose3``, world <- body) and ``V(i)`` (world-frame velocity,
+``Vector3``, m/s). Measurement: ``v_body`` (3,), the body-frame velocity (m/s) a learned model predicts, with its
+covariance ``cov``: diagonal variances (3,) or a full 3x3 covariance, (m/s)^2 (sigma^2, not sigma).
+
+Error ``e = R_i^T v_i - v_body`` (body frame, m/s); Gaussian noise with the learned covariance, so the factor's
+``error`` is ``0.5 e^T cov^-1 e``. Jacobians are analytic in GTSAM's Pose3 tangent order [rotation, translation] with
+the right-multiplied perturbation ``R Exp(w)``: ``d e / d X_i = [skew(R_i^T v_i), 0_3x3]``, ``d e / d V_i = R_i^T``
+(``(R Exp(w))^T v = R^T v - w x R^T v`` to first order); ``Rot3.unrotate`` computes both in C++.
+
+Speed. No C++ factor in gtsam 4.3's Python module has this error on (Pose3, Vector3) keys, so this is a Python
+``gtsam.CustomFactor``. Inside GTSAM's own optimisers (``LevenbergMarquardtOptimizer``, ``ISAM2``) pybind11 hands the
+callback a *copy* of the optimiser's whole ``Values`` (C++ objects Python does not know), so each evaluation costs
+O(graph size) (~0.2 ms at 2,000 values) and N motion factors O(N^2) per iteration: 1,000 of them make a 1,000-keyframe
+IMU + GPS solve ~25x slower. Called with a ``Values`` that Python owns, the callback gets it by reference (~4 us an
+error, ~9 us a linearisation). Hence two routes, same error and Jacobians (``benchmarks/motion_factor.py``):
+
+- ``solve_with_python_factors(graph, initial)``: GTSAM's Levenberg-Marquardt stepped from Python, the factors in the
+  graph (~2.5x the solve without them);
+- ``MotionTerms(factors)`` passed as ``extra=`` to it: the factors evaluated together in numpy (~1.8x).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from airimu_core.checks import SYMMETRY_TOL
+from airimu_core.errors import GraphError, InputError, real_array
+from factors.checks import key_name
+
+# GTSAM's LevenbergMarquardtParams.minModelFidelity default (its Python params have no getter): a step is kept when
+# the actual decrease is above this fraction of the linearised model's
+MIN_MODEL_FIDELITY = 1e-3
+
+
+class MotionFactor(gtsam.CustomFactor):
+    """Body-frame velocity ``v_body`` (m/s) measured at (X(i), V(i)), with its covariance ((3,) variances or 3x3,
+    (m/s)^2). Error ``R_i^T v_i - v_body`` (module docstring)."""
+
+    def __init__(self, pose_key: int, vel_key: int, v_body, cov):
+        self.v_body = _finite("v_body", v_body, ((3,),), "(3,) m/s")
+        cov = _finite("cov", cov, ((3,), (3, 3)), "(3,) variances or (3, 3), (m/s)^2")
+        problem = covariance_problem(cov)
+        if problem is not None:
+            raise InputError(f"MotionFactor: cov {problem}")
+        self.cov = np.diag(cov) if cov.ndim == 1 else 0.5 * (cov + cov.T)
+        if cov.ndim == 1:
+            noise = gtsam.noiseModel.Diagonal.Variances(cov)
+        else:
+            noise = gtsam.noiseModel.Gaussian.Covariance(self.cov)
+        self.pose_key, self.vel_key = pose_key, vel_key
+        super().__init__(noise, [pose_key, vel_key], self._evaluate)
+
+    def _evaluate(self, this: gtsam.CustomFactor, values: gtsam.Values, jacobians: list | None) -> np.ndarray:
+        rot = values.atPose3(self.pose_key).rotation()
+        vel = values.atVector(self.vel_key)
+        if jacobians is None:
+            return rot.unrotate(vel) - self.v_body
+        d_rot, d_vel = np.zeros((3, 3), order="F"), np.zeros((3, 3), order="F")
+        v_in_body = rot.unrotate(vel, d_rot, d_vel)  # d_rot = skew(R^T v), d_vel = R^T
+        d_pose = np.zeros((3, 6))
+        d_pose[:, 0:3] = d_rot  # the translation does not enter
+        jacobians[0] = d_pose
+        jacobians[1] = d_vel
+        return v_in_body - self.v_body
+
+
+def motion_factors(
+    v_body,
+    cov,
+    pose_key=gtsam.symbol_shorthand.X,
+    vel_key=gtsam.symbol_shorthand.V,
+    keys=None,
+) -> list[MotionFactor]:
+    """One ``MotionFactor`` per row: row r on (``pose_key(k)``, ``vel_key(k)``) with ``k = keys[r]``.
+
+    Args:
+        v_body: (K, 3) body-frame velocities, m/s.
+        cov: (K, 3) diagonal variances or (K, 3, 3) covariances, (m/s)^2.
+        pose_key, vel_key: functions of a keyframe index giving its keys (``X``, ``V`` by default; e.g.
+            ``lambda k: X(k + 1)`` to number from 1), as ``factors.from_export`` takes them.
+        keys: (K,) the keyframe index of each row; default 0 .. K-1.
+    """
+    v_body = real_array(v_body, "motion_factors: v_body")
+    cov = real_array(cov, "motion_factors: cov")
+    if v_body.ndim != 2 or v_body.shape[1] != 3:
+        raise InputError(f"motion_factors: v_body must have shape (K, 3) (m/s), got {v_body.shape}")
+    count = len(v_body)
+    if cov.shape not in ((count, 3), (count, 3, 3)):
+        raise InputError(
+            f"motion_factors: cov must have shape ({count}, 3) (variances) or ({count}, 3, 3), got {cov.shape}"
+        )
+    index = np.arange(count) if keys is None else np.asarray(keys)
+    if index.shape != (count,) or not np.issubdtype(index.dtype, np.integer):
+        raise InputError(f"motion_factors: keys must be {count} integer keyframe indices, got {repr(keys)[:60]}")
+    factors = []
+    for row, k in enumerate(index.tolist()):
+        try:
+            factors.append(MotionFactor(pose_key(k), vel_key(k), v_body[row], cov[row]))
+        except InputError as error:
+            raise InputError(f"motion_factors: row {row} (keyframe {k}): {error}") from None
+    return factors
+
+
+def covariance_problem(cov: np.ndarray) -> str | None:
+    """Why finite ``cov`` ((3,) variances or 3x3, (m/s)^2) is not a covariance, or None."""
+    if cov.ndim == 1:
+        return None if np.all(cov > 0) else f"variances must be positive, got {cov.tolist()}"
+    if np.abs(cov - cov.T).max() > SYMMETRY_TOL * np.abs(cov).max():
+        return "must be symmetric"
+    smallest = float(np.linalg.eigvalsh(cov).min())
+    return None if smallest > 0 else f"must be positive definite, min eigenvalue {smallest:.3g}"
+
+
+class MotionTerms:
+    """``MotionFactor``s evaluated together in numpy: the same errors, whitening and Jacobians, for
+    ``solve_with_python_factors(..., extra=(terms,))`` instead of adding the factors to the graph (module docstring:
+    ~0.25 ms against ~4 ms per error of 1,000 factors, ~4 ms against ~10 ms per linearisation).
+
+    States are read in bulk (``gtsam.utilities.extractPose3`` / ``extractVectors``); a velocity key whose symbol
+    character also names non-vector values falls back to ``Values.atVector`` per key."""
+
+    def __init__(self, factors: list[MotionFactor]):
+        self.pose_keys = np.array([f.pose_key for f in factors], dtype=np.uint64)
+        self.vel_keys = np.array([f.vel_key for f in factors], dtype=np.uint64)
+        self.v_body = np.array([f.v_body for f in factors]).reshape(-1, 3)
+        # W with W^T W = cov^-1 (the inverse Cholesky factor), as GTSAM's Gaussian noise whitens
+        self.whiten = np.linalg.inv(np.linalg.cholesky(np.array([f.cov for f in factors]).reshape(-1, 3, 3)))
+        self._unit = gtsam.noiseModel.Unit.Create(3)
+
+    def error(self, values: gtsam.Values) -> float:
+        """The sum of the factors' ``error``: 0.5 e^T cov^-1 e."""
+        return 0.5 * float(np.sum(self._whitened(values)[2] ** 2))
+
+    def linearize(self, values: gtsam.Values) -> gtsam.GaussianFactorGraph:
+        """One whitened ``JacobianFactor`` per factor on (pose key, velocity key), as ``MotionFactor.linearize``."""
+        rot, w, white = self._whitened(values)
+        d_pose = np.zeros((len(w), 3, 6))  # [skew(R^T v), 0]
+        d_pose[:, 0, 1], d_pose[:, 0, 2], d_pose[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
+        d_pose[:, 1, 0], d_pose[:, 2, 0], d_pose[:, 2, 1] = w[:, 2], -w[:, 1], w[:, 0]
+        a_pose, a_vel = self.whiten @ d_pose, self.whiten @ np.swapaxes(rot, 1, 2)
+        out = gtsam.GaussianFactorGraph()
+        for k, (pose_key, vel_key) in enumerate(zip(self.pose_keys.tolist(), self.vel_keys.tolist(), strict=True)):
+            out.push_back(gtsam.JacobianFactor(pose_key, a_pose[k], vel_key, a_vel[k], -white[k], self._unit))
+        return out
+
+    def _whitened(self, values: gtsam.Values) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Rotations R (K, 3, 3), R^T v (K, 3) and the whitened errors W (R^T v - v_body) (K, 3)."""
+        poses = np.array(gtsam.utilities.allPose3s(values).keys(), dtype=np.uint64)
+        rot = gtsam.utilities.extractPose3(values)[_rows(poses, self.pose_keys, "Pose3"), :9].reshape(-1, 3, 3)
+        vel = self._velocities(values)
+        v_in_body = np.einsum("kji,kj->ki", rot, vel)
+        return rot, v_in_body, np.einsum("kij,kj->ki", self.whiten, v_in_body - self.v_body)
+
+    def _velocities(self, values: gtsam.Values) -> np.ndarray:
+        keys = np.array(values.keys(), dtype=np.uint64)
+        out = np.empty((len(self.vel_keys), 3))
+        chars = self.vel_keys >> np.uint64(56)  # gtsam.Symbol: the character in the top byte
+        for char in np.unique(chars):
+            mine = chars == char
+            named = keys[(keys >> np.uint64(56)) == char]
+            rows = gtsam.utilities.extractVectors(values, chr(int(char)))
+            if rows.shape == (len(named), 3):
+                out[mine] = rows[_rows(named, self.vel_keys[mine], "velocity")]
+            else:  # the character also names other values: one by one
+                out[mine] = [values.atVector(int(key)) for key in self.vel_keys[mine]]
+        return out
+
+
+def _rows(available: np.ndarray, wanted: np.ndarray, kind: str) -> np.ndarray:
+    """Positions of ``wanted`` keys in the sorted ``available`` ones; a ``GraphError`` names the first missing."""
+    rows = np.minimum(np.searchsorted(available, wanted), max(len(available) - 1, 0))
+    missing = available[rows] != wanted if len(available) else np.ones(len(wanted), bool)
+    if missing.any():
+        key = int(wanted[np.flatnonzero(missing)[0]])
+        raise GraphError(f"MotionTerms: the values have no {kind} for {key_name(key)}")
+    return rows
+
+
+@dataclass(frozen=True, eq=False)
+class Solution:
+    """``solve_with_python_factors``' result: the solved ``values``, its graph ``error`` and the accepted steps."""
+
+    values: gtsam.Values
+    error: float
+    iterations: int
+
+
+def solve_with_python_factors(
+    graph: gtsam.NonlinearFactorGraph,
+    initial: gtsam.Values,
+    params: gtsam.LevenbergMarquardtParams | None = None,
+    extra: tuple = (),
+) -> Solution:
+    """``gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()``, stepped from Python so that Python
+    factors (``MotionFactor``, ``LearnedImuFactor``) get the ``Values`` by reference instead of a copy each
+    (module docstring). GTSAM's rules: COLAMD ordering (of ``graph``), identity damping ``sqrt(lambda) I`` per
+    variable, multifrontal Cholesky, a step kept when the model fidelity exceeds ``minModelFidelity`` (then
+    lambda / factor), else lambda * factor up to ``lambdaUpperBound``; stop on the relative / absolute decrease or
+    ``maxIterations``. Only those default modes: diagonal damping, an adaptive lambda factor, another linear solver
+    or ordering raise. (GTSAM 4.3's own LM eliminates in place, which Python cannot call: on a 1,000-keyframe
+    IMU + GPS graph this loop takes ~1.4x its time.)
+
+    ``extra``: terms evaluated in bulk besides ``graph``, each with ``error(values) -> float`` and
+    ``linearize(values) -> gtsam.GaussianFactorGraph`` (whitened, as a factor's ``linearize`` gives it)."""
+    params = params or gtsam.LevenbergMarquardtParams()
+    if (
+        params.getDiagonalDamping()
+        or not params.getUseFixedLambdaFactor()
+        or params.getLinearSolverType() != "MULTIFRONTAL_CHOLESKY"
+        or params.getOrderingType() != "COLAMD"
+    ):
+        raise InputError(
+            "solve_with_python_factors: only GTSAM's default LM modes (identity damping, fixed lambda factor, "
+            "MULTIFRONTAL_CHOLESKY, COLAMD); use gtsam.LevenbergMarquardtOptimizer for the others"
+        )
+
+    def total_error(at: gtsam.Values) -> float:
+        return graph.error(at) + sum(term.error(at) for term in extra)
+
+    values = gtsam.Values(initial)  # owned by Python: the callbacks get it by reference
+    ordering = graph.orderingCOLAMD()
+    damping = _Damping(values)
+    lam, error, iterations = params.getlambdaInitial(), total_error(values), 0
+    while iterations < params.getMaxIterations() and error > params.getErrorTol():
+        linear = graph.linearize(values)
+        for term in extra:
+            linear.push_back(term.linearize(values))
+        new_values, new_error, lam = _lm_step(total_error, linear, values, error, lam, params, damping, ordering)
+        if new_values is None:  # no step: the decrease is negligible, or lambda reached its bound
+            break
+        iterations += 1
+        decrease = error - new_error
+        values, error = new_values, new_error
+        if decrease <= params.getAbsoluteErrorTol() or decrease <= params.getRelativeErrorTol() * (error + decrease):
+            break
+    return Solution(values, error, iterations)
+
+
+class _Damping:
+    """GTSAM LM's damping, ``sqrt(lambda) I`` on every variable: one unit ``JacobianFactor`` per key built once,
+    whose noise sigma ``1 / sqrt(lambda)`` is set in place per try (~4x cheaper than building them again)."""
+
+    def __init__(self, values: gtsam.Values):
+        self.factors = []
+        self.graph = gtsam.GaussianFactorGraph()
+        unit = {}
+        for key, dim in values.dims().items():
+            if dim not in unit:
+                unit[dim] = (np.eye(dim), np.zeros(dim), gtsam.noiseModel.Unit.Create(dim))
+            factor = gtsam.JacobianFactor(key, *unit[dim])
+            self.factors.append((factor, dim))
+            self.graph.push_back(factor)  # shared, not copied: setModel below reaches the graph
+        self.dims = set(unit)
+
+    def damped(self, linear: gtsam.GaussianFactorGraph, lam: float) -> gtsam.GaussianFactorGraph:
+        sigmas = {dim: np.full(dim, 1.0 / np.sqrt(lam)) for dim in self.dims}
+        for factor, dim in self.factors:
+            factor.setModel(False, sigmas[dim])
+        out = gtsam.GaussianFactorGraph()
+        out.push_back(linear)  # the factors are shared; elimination does not change them
+        out.push_back(self.graph)
+        return out
+
+
+def _lm_step(total_error, linear, values, error, lam, params, damping: _Damping, ordering):
+    """GTSAM's ``tryLambda`` loop: (new values, new error, next lambda), or (None, error, lambda) to stop."""
+    old_linear_error = linear.error(values.zeroVectors())
+    while True:
+        delta = damping.damped(linear, lam).optimize(ordering)
+        linear_change = old_linear_error - linear.error(delta)
+        if linear_change >= 0:
+            new_values = values.retract(delta)
+            new_error = total_error(new_values)
+            cost_change = error - new_error
+            fidelity_ok = linear_change > np.finfo(float).eps * old_linear_error
+            if fidelity_ok and cost_change / linear_change > MIN_MODEL_FIDELITY:
+                return new_values, new_error, max(params.getlambdaLowerBound(), lam / params.getlambdaFactor())
+            if abs(cost_change) < params.getRelativeErrorTol() * error:
+                return None, error, lam
+        lam *= params.getlambdaFactor()
+        if lam >= params.getlambdaUpperBound():
+            return None, error, lam
+
+
+def _finite(name: str, value, shapes: tuple[tuple[int, ...], ...], expected: str) -> np.ndarray:
+    out = real_array(value, f"MotionFactor: {name}")
+    if out.shape not in shapes:
+        raise InputError(f"MotionFactor: {name} must have shape {expected}, got {out.shape}")
+    if not np.all(np.isfinite(out)):
+        raise InputError(f"MotionFactor: {name} contains NaN or Inf")
+    return out

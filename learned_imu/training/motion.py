@@ -1,0 +1,156 @@
+"""Training data and loss of the motion model (``learned_imu.network.motion.MotionNet``): chunks of a sequence, the
+body-frame velocity at every block end, one network pass per chunk.
+
+A chunk is ``context + length`` consecutive samples (both whole numbers of blocks); the network reads all of them
+from rest and is supervised at the block ends after the context (the context warms the GRUs up, as a stream's
+history does at test time). The target at a block end is the ground-truth body-frame velocity ``R_gt^T v_gt``
+(m/s). Chunks that cross a time gap or touch invalid ground truth are left out (``usable_windows``).
+
+The attitude the network reads is the ground truth's, perturbed while training: each chunk's attitude is tilted by
+a random rotation about a horizontal world axis, of angle ``N(0, tilt_noise_rad)`` (roll/pitch error: what the up
+axis ``R^T e_z`` is sensitive to), drawn from torch's global generator (part of a checkpoint, so a resumed run
+continues exactly). That stands in for the estimator's attitude error at test time. Validation reads the
+unperturbed truth.
+
+Loss (a mean over the supervised block ends): ``|v - v_gt|^2`` (m/s)^2, plus ``covariance`` times the Gaussian
+negative log-likelihood of the detached error under the predicted variance, ``0.5 (e^2 / var + log var)`` per
+axis, so the variance learns the error without pulling the velocity (the selection criterion, validation, uses the
+squared error alone).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from airimu_core.errors import InputError
+from airimu_core.sequence import ImuSequence
+from learned_imu.network.motion import Motion, up_in_body
+from learned_imu.training.windows import usable_windows
+
+
+@dataclass(frozen=True, eq=False)
+class MotionChunks:
+    """B chunks of ``context + length`` samples. Shapes: ``gyro``, ``acc`` (B, S, 3) rad/s and m/s^2; ``rot``
+    (B, S, 3, 3) ground-truth attitude world <- IMU; ``target`` (B, M, 3) body-frame velocity at the M block ends
+    after the context, m/s; ``valid`` (B, M) which targets count (all of a usable chunk's)."""
+
+    gyro: torch.Tensor
+    acc: torch.Tensor
+    rot: torch.Tensor
+    target: torch.Tensor
+    valid: torch.Tensor
+    context_blocks: int
+    tilt_noise_rad: float = 0.0
+
+    def __len__(self) -> int:
+        return self.gyro.shape[0]
+
+    @property
+    def windows(self) -> int:
+        """How many targets count (the trainer weighs batches by it)."""
+        return int(self.valid.sum())
+
+    @property
+    def mask(self) -> torch.Tensor:
+        return self.valid
+
+    def predict(self, model, perturb: bool) -> Motion:
+        """The model's output at the supervised block ends; the attitude tilted (module docstring) if ``perturb``."""
+        rot = _tilted(self.rot, self.tilt_noise_rad) if perturb and self.tilt_noise_rad > 0 else self.rot
+        out = model(self.gyro, self.acc, up_in_body(rot))
+        return Motion(out.vel[:, self.context_blocks :], out.vel_var[:, self.context_blocks :])
+
+    def loss(self, model, covariance: float, use_covariance: bool = True) -> torch.Tensor:
+        """Mean squared velocity error plus, with ``use_covariance``, ``covariance`` times the NLL of the detached
+        error (module docstring); the attitude is perturbed while the model trains."""
+        out = self.predict(model, perturb=model.training)
+        err = out.vel - self.target
+        weight = self.valid[..., None].to(err.dtype)
+        count = weight.sum().clamp(min=1.0) * 3
+        loss = (err.square() * weight).sum() / count
+        if use_covariance and covariance > 0:
+            nll = 0.5 * (err.detach().square() / out.vel_var + out.vel_var.log())
+            loss = loss + covariance * (nll * weight).sum() / count
+        return loss
+
+    def to(self, device: str | torch.device) -> MotionChunks:
+        return self._apply(lambda x: x.to(device))
+
+    def double(self) -> MotionChunks:
+        return self._apply(lambda x: x if x.dtype == torch.bool else x.double())
+
+    def select(self, index: torch.Tensor) -> MotionChunks:
+        index = index.to(self.gyro.device)
+        return self._apply(lambda x: x[index])
+
+    def _apply(self, op) -> MotionChunks:
+        return MotionChunks(
+            *(op(x) for x in (self.gyro, self.acc, self.rot, self.target, self.valid)),
+            self.context_blocks,
+            self.tilt_noise_rad,
+        )
+
+
+def make_motion_chunks(
+    sequence: ImuSequence,
+    length: int,
+    stride: int,
+    context: int,
+    block: int,
+    tilt_noise_rad: float = 0.0,
+    allow_empty: bool = False,
+) -> MotionChunks | None:
+    """Chunks of ``sequence`` (module docstring) starting every ``stride`` samples; ``length`` and ``context`` whole
+    numbers of ``block`` samples. None (``allow_empty``) or an ``InputError`` when no chunk is usable."""
+    if sequence.gt is None:
+        raise InputError(f"{sequence.name}: the motion model trains on ground truth; the sequence has none")
+    for name, value in (("length", length), ("context", context)):
+        if value % block or value < (block if name == "length" else 0):
+            raise InputError(f"motion chunks: {name} must be a whole number of {block}-sample blocks, got {value}")
+    if stride < 1:
+        raise InputError(f"motion chunks: stride must be >= 1 sample, got {stride}")
+    span = context + length
+    starts = np.arange(0, len(sequence) - span, stride)
+    starts = starts[usable_windows(sequence, starts, span - 1)] if len(starts) else starts
+    if len(starts) == 0:
+        if allow_empty:
+            return None
+        raise InputError(f"{sequence.name}: no chunk of {span} samples without a gap or invalid ground truth")
+    take = starts[:, None] + np.arange(span)[None, :]
+    gt = sequence.gt
+    ends = take[:, context + block - 1 :: block]  # the block ends after the context
+    target = np.einsum("bmji,bmj->bmi", gt.rot[ends], gt.vel[ends])  # R^T v
+    as_tensor = lambda x: torch.as_tensor(np.ascontiguousarray(x), dtype=torch.float32)  # noqa: E731
+    return MotionChunks(
+        as_tensor(sequence.gyro[take]),
+        as_tensor(sequence.acc[take]),
+        as_tensor(gt.rot[take]),
+        as_tensor(target),
+        torch.ones(target.shape[:2], dtype=torch.bool),
+        context // block,
+        tilt_noise_rad,
+    )
+
+
+def concat_motion_chunks(parts: list[MotionChunks]) -> MotionChunks:
+    first = parts[0]
+    fields_ = zip(*((p.gyro, p.acc, p.rot, p.target, p.valid) for p in parts), strict=True)
+    return MotionChunks(*(torch.cat(list(f)) for f in fields_), first.context_blocks, first.tilt_noise_rad)
+
+
+def _tilted(rot: torch.Tensor, sigma_rad: float) -> torch.Tensor:
+    """(B, S, 3, 3) rotations, each chunk's tilted by one random rotation about a horizontal world axis."""
+    batch = rot.shape[0]
+    heading = torch.rand(batch, device=rot.device, dtype=rot.dtype) * (2 * math.pi)
+    angle = torch.randn(batch, device=rot.device, dtype=rot.dtype) * sigma_rad
+    axis = torch.stack([torch.cos(heading), torch.sin(heading), torch.zeros_like(heading)], dim=-1)
+    k = torch.zeros(batch, 3, 3, dtype=rot.dtype, device=rot.device)
+    k[:, 0, 2], k[:, 1, 2] = axis[:, 1], -axis[:, 0]
+    k[:, 2, 0], k[:, 2, 1] = -axis[:, 1], axis[:, 0]
+    s, c = torch.sin(angle)[:, None, None], torch.cos(angle)[:, None, None]
+    tilt = torch.eye(3, dtype=rot.dtype, device=rot.device) + s * k + (1 - c) * (k @ k)  # Rodrigues
+    return tilt[:, None] @ rot

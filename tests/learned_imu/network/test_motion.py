@@ -1,0 +1,134 @@
+"""The motion model: streaming is the one pass, targets are the body-frame velocity at block ends, the attitude
+augmentation only tilts, training learns velocity, and its checkpoints are told apart from the correction model's."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from airimu.cli import app
+from airimu_core.errors import ConfigError, DataError, InputError
+from learned_imu.config import MotionConfig
+from learned_imu.datasets.simulator import simulate
+from learned_imu.network.checkpoint import model_from_checkpoint, motion_from_checkpoint
+from learned_imu.network.motion import MotionNet, block_ends, motion_sequence, up_in_body
+from learned_imu.training.losses import LossWeights
+from learned_imu.training.motion import _tilted, concat_motion_chunks, make_motion_chunks
+from learned_imu.training.train import Trainer
+
+
+def random_model() -> MotionNet:
+    torch.manual_seed(0)
+    model = MotionNet(conv_channels=(8, 16), gru_sizes=(16,), decoder_hidden=16)
+    for decoder in (model.vel_decoder, model.var_decoder):
+        torch.nn.init.normal_(decoder[-1].weight, std=0.1)
+    return model.eval()
+
+
+@pytest.mark.parametrize("n", [900, 1000, 1001])
+def test_streaming_equals_one_pass_and_outputs_sit_at_block_ends(n):
+    model = random_model()
+    gen = torch.Generator().manual_seed(n)
+    gyro, acc = torch.randn(n, 3, generator=gen), torch.randn(n, 3, generator=gen) + torch.tensor([0.0, 0.0, 9.8])
+    up = torch.nn.functional.normalize(torch.randn(n, 3, generator=gen), dim=-1)
+    one = model(gyro[None], acc[None], up[None])
+    streamed = motion_sequence(model, gyro, acc, up, chunk=77)
+    ends = block_ends(n, model.block)
+    assert one.vel.shape[1] == streamed.vel.shape[0] == len(ends) == math.ceil(n / 9)
+    assert ends[-1] == n - 1 and (ends[:-1] % 9 == 8).all()
+    torch.testing.assert_close(streamed.vel, one.vel[0], atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(streamed.vel_var, one.vel_var[0], atol=1e-6, rtol=1e-5)
+    # causal: the first half's outputs do not change when the second half does
+    other = motion_sequence(model, gyro, acc, torch.cat([up[: n // 2], -up[n // 2 :]]), chunk=1000)
+    keep = n // 2 // 9
+    torch.testing.assert_close(other.vel[:keep], streamed.vel[:keep], atol=1e-5, rtol=1e-5)
+    assert not torch.allclose(other.vel[-1], streamed.vel[-1])
+
+
+def test_untrained_model_gives_zero_velocity_with_its_initial_variance():
+    model = MotionNet(init_var=0.3).eval()
+    out = model(torch.randn(1, 90, 3), torch.randn(1, 90, 3), torch.randn(1, 90, 3))
+    assert torch.all(out.vel == 0) and torch.allclose(out.vel_var, torch.full_like(out.vel_var, 0.3))
+    with pytest.raises(InputError, match="must all be"):
+        model(torch.randn(1, 90, 3), torch.randn(1, 90, 3), torch.randn(1, 80, 3))
+    with pytest.raises(InputError, match="eval"):
+        MotionNet().train().stream(*(torch.zeros(1, 9, 3),) * 3, MotionNet().initial_state())
+
+
+def test_chunk_targets_are_the_body_frame_velocity_at_block_ends():
+    seq = simulate("car", duration_s=30.0, seed=3)
+    chunks = make_motion_chunks(seq, length=900, stride=450, context=90, block=9)
+    assert len(chunks) == (len(seq) - 990 - 1) // 450 + 1 and chunks.target.shape[1] == 100
+    first_end = 90 + 8  # the first block end after the context of chunk 0
+    expected = seq.gt.rot[first_end].T @ seq.gt.vel[first_end]
+    np.testing.assert_allclose(chunks.target[0, 0].numpy(), expected, rtol=1e-5, atol=1e-5)
+    last = 450 + 90 + 899
+    np.testing.assert_allclose(chunks.target[1, -1].numpy(), seq.gt.rot[last].T @ seq.gt.vel[last], atol=1e-5)
+    with pytest.raises(InputError, match="whole number of 9-sample blocks"):
+        make_motion_chunks(seq, length=1000, stride=450, context=90, block=9)
+    seq.gt.valid[200] = False  # a hole in the truth: chunks touching it go
+    holed = make_motion_chunks(seq, length=900, stride=450, context=90, block=9)
+    assert len(holed) == len(chunks) - 1
+
+
+def test_the_attitude_augmentation_tilts_by_the_configured_angle_and_keeps_rotations():
+    rot = torch.as_tensor(simulate("drone", duration_s=2.0, seed=1).gt.rot[:50], dtype=torch.float64)
+    batch = rot[None].expand(4000, -1, -1, -1)
+    torch.manual_seed(0)
+    tilted = _tilted(batch, math.radians(2.0))
+    eye = torch.eye(3, dtype=torch.float64)
+    assert torch.allclose(tilted.mT @ tilted, eye.expand_as(tilted), atol=1e-12)
+    # the up axis moves by the tilt angle (about a horizontal world axis), the same angle for all samples of a chunk
+    cos = (up_in_body(tilted) * up_in_body(batch)).sum(-1).clamp(-1, 1)
+    angle = torch.rad2deg(torch.acos(cos))
+    assert torch.allclose(angle, angle[:, :1], atol=1e-5)
+    rms = float(angle[:, 0].square().mean().sqrt())
+    assert 1.9 < rms < 2.1  # N(0, 2 deg)
+
+
+def test_training_learns_the_velocity():
+    """On unseen simulated flights of the same drone the squared velocity error falls well below the untrained
+    model's (which says 0 m/s: the mean squared speed per axis)."""
+    flights = [make_motion_chunks(simulate("drone", duration_s=120.0, seed=s), 450, 90, 90, 9, 0.035) for s in (1, 2)]
+    val = make_motion_chunks(simulate("drone", duration_s=60.0, seed=3), 450, 450, 90, 9)
+    torch.manual_seed(0)
+    model = MotionNet(gru_sizes=(64,), decoder_hidden=32)
+    trainer = Trainer(model, concat_motion_chunks(flights), val, 16, 3e-3, weights=LossWeights(covariance=0.1))
+    before = trainer.validation_loss()
+    for _ in range(10):
+        trainer.epoch()
+    after = trainer.validation_loss()
+    assert after < 0.7 * before, (before, after)  # measured 1.43 -> 0.81 (m/s)^2
+
+
+def test_motion_config_is_checked():
+    with pytest.raises(ConfigError, match="motion.chunk"):
+        MotionConfig(chunk=1000)
+    with pytest.raises(ConfigError, match="motion.tilt_noise_deg"):
+        MotionConfig(tilt_noise_deg=-1.0)
+
+
+@pytest.mark.slow
+def test_airimu_train_trains_either_model_and_checkpoints_say_which(tmp_path):
+    config = tmp_path / "tiny.yaml"
+    config.write_text(
+        "name: tiny\ndata:\n"
+        "  train: [{dataset: simulator, options: {profile: drone, duration_s: 40.0, seed: 1}}]\n"
+        "  val: [{dataset: simulator, options: {profile: drone, duration_s: 20.0, seed: 2}}]\n"
+        "model: {gru_sizes: [16, 16]}\nmotion: {gru_sizes: [16], chunk: 900, chunk_stride: 450}\n"
+        "train: {window: 200, batch_size: 4, epochs: 1, calibration_steps: 0}\n"
+    )
+    result = CliRunner().invoke(app, ["train", "--config", str(config), "--out", str(tmp_path / "run"), "--model",
+                                      "both", "--no-progress"])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    model, _ = motion_from_checkpoint(tmp_path / "run" / "motion" / "best.pt")
+    assert isinstance(model, MotionNet) and model.trained_on.rate_hz == pytest.approx(200.0)
+    model_from_checkpoint(tmp_path / "run" / "correction" / "best.pt")
+    with pytest.raises(DataError, match="holds a motion model, not a correction model"):
+        model_from_checkpoint(tmp_path / "run" / "motion" / "best.pt")
+    with pytest.raises(DataError, match="holds a correction model, not a motion model"):
+        motion_from_checkpoint(tmp_path / "run" / "correction" / "best.pt")

@@ -1,17 +1,8 @@
-"""Export: the hand-off from torch to GTSAM, one ``.npz`` file per sequence (no pickle).
-
-Format version 1 (read back, validated, by ``factors.export_file.load_export``):
-
-- ``format_version`` () int; ``name`` () str; ``gravity`` (3,) world-frame gravity vector, m/s^2.
-- per sample (N): ``t`` s; ``gyro`` rad/s and ``acc`` m/s^2 (the samples used: corrected ones when a model
-  ran), IMU frame; ``gyro_cov`` rad^2/s and ``acc_cov`` m^2/s^3, continuous-time noise densities (diagonal).
-- per keyframe (K): ``keyframe_t`` s and ``keyframe_index`` (the sample at which the keyframe's state is taken).
-- per keyframe interval (K - 1): ``delta_rot`` (3, 3), ``delta_pos`` (3,) m, ``delta_vel`` (3,) m/s, ``delta_dt``
-  s: the preintegrated deltas from keyframe k to k + 1; ``delta_cov`` (9, 9) in GTSAM's tangent order
-  [rotation, position, velocity] and noise convention (``preintMeasCov``); ``bias_jacobian`` (9, 6) w.r.t. a
-  bias [acc, gyro] subtracted from the samples.
-- ground truth when known: ``gt_rot`` (N, 3, 3) world <- IMU, ``gt_pos`` (N, 3), ``gt_vel`` (N, 3), ``gt_valid``.
-Files are written to a temporary name and renamed, so a crash never leaves a half-written export.
+"""The hand-off from torch to GTSAM: ``preintegration_export`` preintegrates a sequence's (corrected) samples between
+keyframes into an ``airimu_core.export.Export`` in memory (every field's shape, unit and frame: that module's
+docstring); ``export_preintegration`` writes the same as a ``.npz`` (no pickle) for another process, to a temporary
+name then renamed, so a crash never leaves a half-written export (``airimu_core.export.load_export`` reads it back,
+validated).
 """
 
 from __future__ import annotations

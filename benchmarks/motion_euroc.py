@@ -33,6 +33,7 @@ from gtsam.symbol_shorthand import V, X
 
 from factors import from_export, motion_factors
 from learned_imu.config import load_config
+from learned_imu.evaluation.evaluate import dead_reckoning
 from learned_imu.export import preintegration_export
 from learned_imu.geometry.preintegration import preintegrate
 from learned_imu.network.checkpoint import model_from_checkpoint, motion_from_checkpoint
@@ -51,12 +52,6 @@ def attitude(seq, gyro: np.ndarray) -> np.ndarray:
     pre = preintegrate(torch.as_tensor(gyro), torch.zeros(len(seq), 3, dtype=torch.float64), torch.as_tensor(seq.dt))
     rot = seq.gt.rot[0] @ pre.rot.numpy()
     return np.concatenate([seq.gt.rot[:1], rot[:-1]])
-
-
-def strapdown(seq, gyro: np.ndarray, acc: np.ndarray) -> np.ndarray:
-    from learned_imu.evaluation.evaluate import dead_reckoning
-
-    return dead_reckoning(seq, gyro, acc)
 
 
 def integrated_velocity(seq, rot: np.ndarray, vel_body: np.ndarray, ends: np.ndarray) -> np.ndarray:
@@ -134,7 +129,7 @@ def main() -> None:
         truth_body = np.einsum("nji,nj->ni", seq.gt.rot[ends], seq.gt.vel[ends])
         est_rot = attitude(seq, gyro)
         result = {"sequence": seq.name, "airio_ekf_ate_m": AIRIO_EKF_ATE_M.get(seq.name)}
-        tracks = {"airimu": strapdown(seq, gyro, acc)}
+        tracks = {"airimu": dead_reckoning(seq, gyro, acc)}
         raw = [torch.as_tensor(x, dtype=torch.float32) for x in (seq.gyro, seq.acc)]
         for name, rot in (("est", est_rot), ("gt", seq.gt.rot)):
             out = motion_sequence(net, *raw, up_in_body(torch.as_tensor(rot, dtype=torch.float32)))

@@ -1,5 +1,5 @@
 """The shipped configs (YAML files beside this module). Installed as the package ``airimu_configs`` (pyproject maps
-it to this folder), so that a non-editable install finds them: ``learned_imu.config.config_path("euroc.yaml")``."""
+it to this folder), so that a non-editable install finds them: ``airimu_core.config.config_path("euroc.yaml")``."""
 
 from pathlib import Path
 

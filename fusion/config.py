@@ -182,8 +182,7 @@ class FuseConfig:
     def noise_is_default(self) -> bool:
         """True while the noise densities are the defaults (only densities someone chose are judged against the
         samples' own white noise: the defaults are a guess for an unknown IMU)."""
-        default = FuseConfig()
-        return self.noise_density == default.noise_density
+        return self.noise_density == (FuseConfig.gyro_noise_density, FuseConfig.acc_noise_density)
 
     @property
     def bias_states(self) -> BiasStates | None:

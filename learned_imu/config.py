@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from airimu_core.config import check_noise_density, config_path, from_dict, read_yaml, save_yaml, to_dict  # noqa: F401
+from airimu_core.config import config_path, from_dict, read_yaml, save_yaml
 from airimu_core.errors import ConfigError
 
 Device = Literal["cpu", "cuda", "auto"]

@@ -87,7 +87,7 @@ class PgoConfig:
 
 
 def load_pgo_config(path: str | Path) -> PgoConfig:
-    """Read ``path`` (YAML; a shipped config by name too, ``learned_imu.config.config_path``); ``experiment`` is made
+    """Read ``path`` (YAML; a shipped config by name too, ``airimu_core.config.config_path``); ``experiment`` is made
     absolute relative to the file's folder."""
     path = config_path(path)
     config = from_dict(PgoConfig, read_yaml(path), source=str(path))

@@ -4,7 +4,7 @@ In code a checkpoint is a ``Checkpoint`` record (typed config, ``BestEpoch``, ``
 dict of tensors, numbers, strings, lists and dicts only, so the safe loader accepts it:
 
 - ``format`` = ``"airimu-checkpoint"``, ``version`` (``VERSION`` when written; ``READABLE`` are read);
-- ``config``: the resolved ``ExperimentConfig`` as a plain dict (``learned_imu.config.to_dict``), from which
+- ``config``: the resolved ``ExperimentConfig`` as a plain dict (``airimu_core.config.to_dict``), from which
   the model is rebuilt without the YAML file;
 - ``trainer``: ``Trainer.state_dict()`` (model weights under ``model``, optimiser, schedule, RNG states, epochs done);
 - ``best``: the best validation record so far (``BestEpoch.to_dict()``; empty before the first epoch);

@@ -126,14 +126,8 @@ class AirImuNet(nn.Module):
         self.pad = kernel_size - stride  # left padding: each window ends on the last sample of its stride block
         self.block = stride ** len(conv_channels)  # input samples per feature step
         self.acc_input_scale_m_s2 = acc_input_scale_m_s2
-        channels = (6, *conv_channels)
-        self.convs = nn.ModuleList(
-            nn.Sequential(
-                nn.Conv1d(c_in, c_out, kernel_size, stride), nn.BatchNorm1d(c_out), nn.GELU(), nn.Dropout(dropout)
-            )
-            for c_in, c_out in zip(channels[:-1], channels[1:], strict=True)
-        )
-        sizes = (channels[-1], *gru_sizes) if use_gru else (channels[-1],)
+        self.convs = causal_convs((6, *conv_channels), kernel_size, stride, dropout)
+        sizes = (conv_channels[-1], *gru_sizes) if use_gru else (conv_channels[-1],)
         self.grus = nn.ModuleList(nn.GRU(a, b, batch_first=True) for a, b in zip(sizes[:-1], sizes[1:], strict=True))
         self.acc_decoder = _decoder(sizes[-1], decoder_hidden)
         self.gyro_decoder = _decoder(sizes[-1], decoder_hidden)
@@ -223,6 +217,17 @@ class AirImuNet(nn.Module):
             gyro_cov=per_sample(torch.exp(log_gyro + self.log_init_gyro_density)),
             acc_cov=per_sample(torch.exp(log_acc + self.log_init_acc_density)),
         )
+
+
+def causal_convs(channels: tuple[int, ...], kernel_size: int, stride: int, dropout: float) -> nn.ModuleList:
+    """Conv1d(kernel, stride) - BatchNorm - GELU - Dropout per consecutive pair of ``channels`` (the encoder's
+    convolutions; ``encode`` pads them on the left so that they are causal)."""
+    return nn.ModuleList(
+        nn.Sequential(
+            nn.Conv1d(c_in, c_out, kernel_size, stride), nn.BatchNorm1d(c_out), nn.GELU(), nn.Dropout(dropout)
+        )
+        for c_in, c_out in zip(channels[:-1], channels[1:], strict=True)
+    )
 
 
 def encode(convs: nn.ModuleList, grus: nn.ModuleList, pad: int, x: torch.Tensor) -> torch.Tensor:

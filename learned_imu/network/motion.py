@@ -29,6 +29,7 @@ from learned_imu.network.model import (  # the correction model's encoder, decod
     ACC_INPUT_SCALE_M_S2,
     _decoder,
     _pad_to_block,
+    causal_convs,
     encode,
     encode_stream,
     initial_encoder_state,
@@ -103,14 +104,8 @@ class MotionNet(nn.Module):
         self.pad = kernel_size - stride
         self.block = stride ** len(conv_channels)
         self.acc_input_scale_m_s2 = acc_input_scale_m_s2
-        channels = (INPUT_CHANNELS, *conv_channels)
-        self.convs = nn.ModuleList(
-            nn.Sequential(
-                nn.Conv1d(c_in, c_out, kernel_size, stride), nn.BatchNorm1d(c_out), nn.GELU(), nn.Dropout(dropout)
-            )
-            for c_in, c_out in zip(channels[:-1], channels[1:], strict=True)
-        )
-        sizes = (channels[-1], *gru_sizes)
+        self.convs = causal_convs((INPUT_CHANNELS, *conv_channels), kernel_size, stride, dropout)
+        sizes = (conv_channels[-1], *gru_sizes)
         self.grus = nn.ModuleList(nn.GRU(a, b, batch_first=True) for a, b in zip(sizes[:-1], sizes[1:], strict=True))
         self.vel_decoder = _decoder(sizes[-1], decoder_hidden)
         self.var_decoder = _decoder(sizes[-1], decoder_hidden)

@@ -29,7 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from airimu_core.errors import DataError, InputError
+from airimu_core.errors import ConfigError, DataError, InputError
+from airimu_core.motion import BodyVelocities
 from airimu_core.sequence import GPS_SIGMA_UNKNOWN_M, GpsFixes, ImuSequence
 from factors.noise import noise_mismatch
 from fusion.config import FuseConfig
@@ -62,12 +63,18 @@ class FusedSummary:
     keyframes: int
     fused_fixes: int
     reference_fixes: int
-    rmse_to_gps_m: float
+    rmse_to_gps_m: float | None  # None without a reference fix inside the span
     ate_aligned_m: float | None
     ate_unaligned_m: float | None
-    # per kind of factor ("gps", "imu", "bias", "prior"): factors, dof and chi-square per degree of freedom at the
-    # solution (``fusion.consistency``; about 1 when the inputs fit their sigmas)
+    # per kind of factor ("gps", "imu", "bias", "motion", "prior"): factors, dof and chi-square per degree of freedom
+    # at the solution (``fusion.consistency``; about 1 when the inputs fit their sigmas)
     normalised_residuals: dict | None = None
+    # per GPS outage: start_s, duration_s (from the first sample), end_t_s (IMU clock) and the position error there
+    # as a causal estimator has it (the log solved up to the outage's end: no later fix or velocity pulls it), m:
+    # against the ground truth (``error_to_truth_m``, the truth aligned as for ate_aligned_m; None without) and
+    # against the reference fix nearest the end within 1 s (``error_to_gps_m``; None without)
+    outages: list | None = None
+    motion_factors: int = 0  # learned body-frame velocity factors in the graph
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,6 +93,10 @@ class FuseRequest:
     gps_every: int = 1
     gps_time_offset_s: float = 0.0
     checkpoint: str | None = None
+    motion_checkpoint: str | None = None  # a motion model: learned velocity factors (FuseConfig.motion)
+    start: object = None  # fuse's start: None, "ground-truth" or a gtsam.NavState at the first sample
+    no_gps: bool = False  # fuse no fix (dead reckoning from start)
+    outages: tuple[tuple[float, float], ...] = ()  # (start, duration) s from the first sample
 
 
 @dataclass(frozen=True, eq=False)
@@ -103,23 +114,32 @@ def run_fuse(request: FuseRequest) -> FuseDone:
     from airimu_core.io import folder_lock
 
     sequence, config = request.sequence, request.config
-    if request.gps_file:
+    if request.no_gps:
+        fixes = None
+        sequence = dataclasses.replace(sequence, gps=None)
+    elif request.gps_file:
         fixes = read_gps_csv(request.gps_file, config.gps_sigma_m)
         check_gps_units(sequence, request.gps_file, fixes, config.gps_sigma_m)
     elif sequence.gps is None:
         raise DataError(request.source, "gps", "the log has no GPS fixes; give a GPS file")
     else:
         fixes = sequence.gps if request.gps_sigma_m is None else sequence.gps.with_sigma(request.gps_sigma_m)
-    if request.gps_time_offset_s:
-        fixes = dataclasses.replace(fixes, t=fixes.t - request.gps_time_offset_s)
-    check_gps_clock(sequence, request.gps_file or request.source, fixes)
-    model = None
+    if fixes is not None:
+        if request.gps_time_offset_s:
+            fixes = dataclasses.replace(fixes, t=fixes.t - request.gps_time_offset_s)
+        check_gps_clock(sequence, request.gps_file or request.source, fixes)
+    model = motion = None
     if request.checkpoint:
         from learned_imu.network.checkpoint import model_from_checkpoint
 
         model = model_from_checkpoint(request.checkpoint)[0]
+    if request.motion_checkpoint:
+        from learned_imu.network.checkpoint import motion_from_checkpoint
+
+        motion = motion_from_checkpoint(request.motion_checkpoint)[0]
+    fused = None if fixes is None else fixes[:: request.gps_every]
     with folder_lock(request.out):  # one writer per folder from here on
-        result = fuse(sequence, fixes[:: request.gps_every], model, config)
+        result = fuse(sequence, fused, model, config, motion, request.start, request.outages)
         summary, written = write_outputs(result, request.out, reference=fixes)
     return FuseDone(summary, written, len(result.gps.t))
 
@@ -134,18 +154,36 @@ class Fused:
     gps: GpsFixes
     sequence: ImuSequence
     residuals: dict = dataclasses.field(default_factory=dict)  # fusion.consistency.residuals of the solution
+    motion: BodyVelocities | None = None  # the motion model's velocities of the last pass (fused with cov_scale)
+    outages: tuple[tuple[float, float], ...] = ()  # (start, duration) s from the first sample: no fix fused
+    # per outage: (time s, position (3,) m) at its end as the log up to then solves (no later fix or velocity)
+    outage_ends: tuple = ()
 
 
-def fuse(sequence: ImuSequence, gps: GpsFixes | None = None, model=None, config: FuseConfig | None = None) -> Fused:
-    """Fuse ``sequence``'s IMU with ``gps`` (default: the sequence's own fixes); see the module docstring.
+def fuse(
+    sequence: ImuSequence,
+    gps: GpsFixes | None = None,
+    model=None,
+    config: FuseConfig | None = None,
+    motion_model=None,
+    start=None,
+    outages: tuple[tuple[float, float], ...] = (),
+) -> Fused:
+    """Fuse ``sequence``'s IMU with ``gps`` (default: the sequence's own fixes; none at all: dead reckoning, which
+    needs ``start``); see the module docstring.
 
     Args:
         model: an ``AirImuNet`` (e.g. ``learned_imu.network.checkpoint.model_from_checkpoint(...)[0]``), or None
             for the raw samples with the config's noise densities.
         config: ``fusion.config.FuseConfig`` (default: ``FuseConfig()``, as ``configs/fuse.yaml``): noise without a
-            model, keyframes, bias states, the graph and solver. Noise densities other than the defaults are
-            checked against the samples' own white noise (module docstring); with a model they are refused (the
-            model predicts the IMU's noise).
+            model, keyframes, bias states, the graph and solver, the motion factors. Noise densities other than the
+            defaults are checked against the samples' own white noise (module docstring); with a model they are
+            refused (the model predicts the IMU's noise).
+        motion_model: a ``MotionNet`` (``motion_from_checkpoint(...)[0]``): learned body-frame velocity factors at
+            the keyframes (``config.motion``), the model reading the attitude of the previous solution.
+        start: the state at the log's first IMU sample, a ``gtsam.NavState`` (pose world <- IMU, world velocity
+            m/s), or ``"ground-truth"`` (the sequence's); default: aligned to the GPS track.
+        outages: (start, duration) pairs, s from the log's first sample: the fixes inside are not fused.
     """
     from learned_imu.network.inference import correct
 
@@ -156,27 +194,21 @@ def fuse(sequence: ImuSequence, gps: GpsFixes | None = None, model=None, config:
         raise InputError(
             "fuse: the config's noise densities apply without a model only (the model predicts the IMU's noise)"
         )
-    if fixes is None or len(fixes.t) < 2:
-        raise DataError(where, "gps", "fusing needs at least two GPS fixes")
-    sequence = dataclasses.replace(sequence, gps=fixes)
-    inside = (fixes.t >= sequence.t[0]) & (fixes.t <= sequence.t[-1])
-    if inside.sum() < 2:
-        raise DataError(where, "gps", "fewer than two fixes lie within the IMU's time span")
-    before, after = fixes.t[inside][0] - sequence.t[0], sequence.t[-1] - fixes.t[inside][-1]
-    if max(before, after) > UNCOVERED_WARNING_S:
-        log.warning(
-            "%s: the IMU runs %.0f s before the first GPS fix and %.0f s after the last: keyframes there are "
-            "dead reckoning (a GPS file of a shorter stretch, or in another time base?)",
-            where,
-            before,
-            after,
-        )
-    if config.keyframe_s is None:
-        sequence = fixes_on_samples(sequence)
-        index = np.unique(nearest_samples(sequence, sequence.gps.t)[0])
+    initial_state = _start_state(sequence, start)
+    if fixes is not None and len(fixes.t):
+        fixes = _outside_outages(fixes, sequence.t[0], outages)
+    if fixes is None or len(fixes.t) == 0:
+        fixes = None
+        if initial_state is None:
+            raise DataError(where, "gps", "no GPS fix to fuse: give the start state (--start) to dead-reckon")
+        if motion_model is None:
+            log.warning("%s: no GPS and no motion model: the result is integrated IMU, which drifts fast", where)
     else:
-        check_keyframe_interval(sequence, config.keyframe_s, f"{config.keyframe_s:g}s")
-        index = keyframes_every(sequence, config.keyframe_s)
+        sequence = dataclasses.replace(sequence, gps=fixes)
+        if config.keyframe_s is None:  # a keyframe at every fix: only fixes on an IMU sample
+            sequence = fixes_on_samples(sequence)
+            fixes = sequence.gps
+        _check_coverage(sequence, fixes, where, need=1 if initial_state is not None else 2)
     if model is not None:
         correction = correct(model, sequence)
     else:
@@ -188,10 +220,109 @@ def fuse(sequence: ImuSequence, gps: GpsFixes | None = None, model=None, config:
         zero = torch.zeros_like(gyro)
         gyro_cov, acc_cov = (torch.full_like(gyro, s**2) for s in config.noise_density)
         correction = Correction(gyro, acc, zero, zero, gyro_cov, acc_cov)
-    blind = dataclasses.replace(sequence, gt=None)  # the first state from the GPS track, not from ground truth
+    result = _solve(sequence, fixes, correction, config, motion_model, initial_state)
+    ends = []
+    for begin, duration in outages:  # what a causal estimator believes when the outage ends: the log up to then
+        end = min(float(sequence.t[0]) + begin + duration, float(sequence.t[-1]))
+        head = sequence.until(end)
+        cut = len(head.t)
+        part = Correction(*(getattr(correction, f.name)[:cut] for f in dataclasses.fields(Correction)))
+        early = None if fixes is None else fixes[fixes.t < end]  # the fix that ends it not yet
+        solved = _solve(
+            head,
+            early if early is not None and len(early.t) else None,
+            part,
+            config,
+            motion_model,
+            initial_state,
+            end_keyframe=True,
+        )
+        ends.append((float(head.t[-1]), solved.solution.trajectory.pos[-1]))
+    return dataclasses.replace(result, outages=tuple(outages), outage_ends=tuple(ends))
+
+
+def _solve(sequence, fixes, correction, config, motion_model, initial_state, end_keyframe=False) -> Fused:
+    """Keyframes, the export and the graph solved; with a motion model ``config.motion.passes`` more solves, each
+    with the model's velocities on the previous solution's attitude. ``end_keyframe``: a keyframe at the last
+    sample too (the state there is what the caller wants)."""
+    index = _keyframes(sequence, fixes, config, motion_model is not None, initial_state is not None)
+    if end_keyframe:
+        index = np.unique(np.append(index, len(sequence.t) - 1))
+    blind = dataclasses.replace(sequence, gt=None)  # the first state from the GPS track or start, not ground truth
     export = preintegration_export(blind, index, correction=correction)
-    solution, found = solve_export(export, sequence.gps, config)
-    return Fused(solution, correction, sequence.gps, sequence, found)
+    solution, found = solve_export(export, fixes, config, initial_state)
+    fused = fixes if fixes is not None else GpsFixes(np.zeros(0), np.zeros((0, 3)), GPS_SIGMA_UNKNOWN_M)
+    velocities = None
+    for _ in range(config.motion.passes if motion_model is not None else 0):  # each pass on the last attitude
+        from learned_imu.network.motion import predict_velocities
+
+        rot = attitude_at_samples(Fused(solution, correction, fused, sequence))
+        velocities = predict_velocities(motion_model, sequence, rot).scaled(config.motion.cov_scale)
+        solution, found = solve_export(export, fixes, config, initial_state, velocities)
+    return Fused(solution, correction, fused, sequence, found, velocities)
+
+
+def _start_state(sequence: ImuSequence, start):
+    """``fuse``'s ``start`` as a ``gtsam.NavState`` at the first sample, or None."""
+    if start is None:
+        return None
+    import gtsam
+
+    if isinstance(start, str):
+        if start != "ground-truth":
+            raise InputError(f"fuse: start must be a gtsam.NavState or 'ground-truth', got {start!r}")
+        gt = sequence.gt
+        if gt is None or not gt.valid[0]:
+            raise DataError(sequence.source or sequence.name, "ground truth", "no ground truth at the first sample")
+        return gtsam.NavState(gtsam.Rot3(gt.rot[0]), gt.pos[0], gt.vel[0])
+    if not isinstance(start, gtsam.NavState):
+        raise InputError(f"fuse: start must be a gtsam.NavState or 'ground-truth', got {type(start).__name__}")
+    return start
+
+
+def _outside_outages(fixes: GpsFixes, t0: float, outages) -> GpsFixes:
+    """The fixes outside every outage (start, duration), s from ``t0``."""
+    keep = np.ones(len(fixes.t), dtype=bool)
+    for begin, duration in outages:
+        if not (np.isfinite(begin) and np.isfinite(duration) and duration > 0 and begin >= 0):
+            raise InputError(f"GPS outage {begin}:{duration}: needs a start >= 0 s and a duration > 0 s")
+        keep &= ~((fixes.t >= t0 + begin) & (fixes.t < t0 + begin + duration))
+    return fixes[keep]
+
+
+def _check_coverage(sequence: ImuSequence, fixes: GpsFixes, where, need: int) -> None:
+    """``need`` fixes at least inside the IMU's span; a warning when the IMU runs long before or after them."""
+    inside = (fixes.t >= sequence.t[0]) & (fixes.t <= sequence.t[-1])
+    if inside.sum() < need:
+        raise DataError(where, "gps", f"fewer than {need} fix(es) lie within the IMU's time span")
+    before, after = fixes.t[inside][0] - sequence.t[0], sequence.t[-1] - fixes.t[inside][-1]
+    if max(before, after) > UNCOVERED_WARNING_S:
+        log.warning(
+            "%s: the IMU runs %.0f s before the first GPS fix and %.0f s after the last: keyframes there are "
+            "dead reckoning (a GPS file of a shorter stretch, or in another time base?)",
+            where,
+            before,
+            after,
+        )
+
+
+def _keyframes(sequence: ImuSequence, fixes, config: FuseConfig, motion: bool, from_start: bool) -> np.ndarray:
+    """Keyframe sample indices: one at every fix (or every ``keyframe_s``), plus every ``motion.keyframe_s`` with
+    a motion model, plus the first sample when the start state is given there."""
+    parts = []
+    if config.keyframe_s is not None:
+        check_keyframe_interval(sequence, config.keyframe_s, f"{config.keyframe_s:g}s")
+        parts.append(keyframes_every(sequence, config.keyframe_s))
+    elif fixes is not None:
+        parts.append(nearest_samples(sequence, fixes.t)[0])
+    if motion and config.motion.keyframe_s is not None:
+        check_keyframe_interval(sequence, config.motion.keyframe_s, f"motion.keyframe_s {config.motion.keyframe_s:g}s")
+        parts.append(keyframes_every(sequence, config.motion.keyframe_s))
+    if not parts:
+        raise ConfigError("fuse: without GPS fixes set keyframe_s (--keyframes) or, with --motion, motion.keyframe_s")
+    if from_start:
+        parts.append(np.zeros(1, dtype=int))
+    return np.unique(np.concatenate(parts))
 
 
 def _check_noise(sequence: ImuSequence, noise_density: tuple[float, float]) -> None:
@@ -281,7 +412,7 @@ def write_outputs(result: Fused, folder: Path, reference: GpsFixes | None = None
     from airimu.viz.figures import plot
     from airimu.viz.results import SequenceResult, marginal_track, record
     from airimu_core.io import atomic_file, output_folder, write_json_atomic
-    from learned_imu.evaluation.metrics import ate_m
+    from learned_imu.evaluation.metrics import ate_m, umeyama_alignment
 
     folder = output_folder(folder)
     # summary.json is written last and marks a complete folder: a previous run's goes first, so that a rerun
@@ -295,13 +426,17 @@ def write_outputs(result: Fused, folder: Path, reference: GpsFixes | None = None
     with atomic_file(folder / "marginals.npz", "wb") as f:
         np.savez(f, t=trajectory.t, pos=trajectory.pos, pos_cov=pos_cov)
     written.append(folder / "marginals.npz")
-    view = SequenceResult(result.sequence, result.correction, [], {"fused": (result.solution, result.gps)})
+    t0 = float(result.sequence.t[0])
+    spans = [(t0 + begin, t0 + begin + duration) for begin, duration in result.outages]
+    view = SequenceResult(result.sequence, result.correction, [], {"fused": (result.solution, result.gps)}, spans)
     written += [record(view, folder / "fused.rrd"), plot(view, folder / "fused.png")]
     reference = reference if reference is not None else result.gps
     inside = (reference.t >= trajectory.t[0]) & (reference.t <= trajectory.t[-1])
-    err = trajectory.position_at(reference.t[inside]) - reference.pos[inside]
-    rmse = float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
-    aligned = unaligned = None
+    rmse = None
+    if inside.any():
+        err = trajectory.position_at(reference.t[inside]) - reference.pos[inside]
+        rmse = float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
+    aligned = unaligned = truth_in_fused = None
     gt = result.sequence.gt
     if gt is not None:
         sample = np.searchsorted(result.sequence.t, dense.t)
@@ -309,6 +444,8 @@ def write_outputs(result: Fused, folder: Path, reference: GpsFixes | None = None
         if keep.sum() >= 3:
             aligned = ate_m(gt.pos[sample[keep]], dense.pos[keep], align=True)  # the truth into the fused frame
             unaligned = ate_m(gt.pos[sample[keep]], dense.pos[keep], align=False)
+            rot, trans = umeyama_alignment(gt.pos[sample[keep]], dense.pos[keep])
+            truth_in_fused = (dense.t[keep], gt.pos[sample[keep]] @ rot.T + trans)
     normalised = {kind: r.to_json_dict() for kind, r in result.residuals.items()}
     summary = FusedSummary(
         result.sequence.name,
@@ -319,9 +456,42 @@ def write_outputs(result: Fused, folder: Path, reference: GpsFixes | None = None
         aligned,
         unaligned,
         normalised,
+        [
+            _outage_errors(begin, duration, end, truth_in_fused, reference)
+            for (begin, duration), end in zip(result.outages, result.outage_ends, strict=True)
+        ],
+        0 if result.motion is None else int(len(result.motion.at(trajectory.t)[2].nonzero()[0])),
     )
     written.append(write_json_atomic(folder / "summary.json", dataclasses.asdict(summary)))
     return summary, written
+
+
+def _outage_errors(begin: float, duration: float, end, truth, reference: GpsFixes) -> dict:
+    """``FusedSummary.outages``' entry of one outage (its docstring); ``end``: (time, position) from
+    ``Fused.outage_ends``."""
+    end_t, pos = end
+    to_truth = to_gps = None
+    if truth is not None:
+        k = int(np.argmin(np.abs(truth[0] - end_t)))
+        to_truth = float(np.linalg.norm(pos - truth[1][k])) if abs(truth[0][k] - end_t) < 0.05 else None
+    if len(reference.t):
+        k = int(np.argmin(np.abs(reference.t - end_t)))
+        to_gps = float(np.linalg.norm(pos - reference.pos[k])) if abs(reference.t[k] - end_t) <= 1.0 else None
+    return {
+        "start_s": begin,
+        "duration_s": duration,
+        "end_t_s": end_t,
+        "error_to_truth_m": to_truth,
+        "error_to_gps_m": to_gps,
+    }
+
+
+def attitude_at_samples(result: Fused) -> np.ndarray:
+    """(N, 3, 3) world <- IMU at every sample of the sequence: ``imu_rate_trajectory``'s, held before the first
+    keyframe and after the last (what the motion model reads: the estimate, never ground truth)."""
+    dense = imu_rate_trajectory(result)
+    at = np.clip(np.searchsorted(dense.t, result.sequence.t), 0, len(dense.t) - 1)
+    return dense.rot[at]
 
 
 def imu_rate_trajectory(result: Fused) -> Trajectory:

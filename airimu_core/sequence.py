@@ -174,6 +174,22 @@ class ImuSequence:
             raise InputError(f"{self.name}: part [{start}, {stop}] holds fewer than 2 of its {n} samples")
         return self._samples(slice(first, last), f"{self.name}[{start:g}:{stop:g}]")
 
+    def until(self, t_end: float) -> ImuSequence:
+        """The samples up to and including time ``t_end`` (s, IMU clock), with their ground truth and fixes: what a
+        causal estimator has seen by then."""
+        return self.between(float(self.t[0]), t_end)
+
+    def between(self, t_start: float, t_end: float, name: str | None = None) -> ImuSequence:
+        """The samples with ``t_start <= t <= t_end`` (s, IMU clock), with their ground truth and fixes; named
+        ``name`` (default: this sequence's name)."""
+        first = int(np.searchsorted(self.t, t_start, side="left"))
+        last = int(np.searchsorted(self.t, t_end, side="right"))
+        if last - first < 2:
+            raise InputError(f"{self.name}: fewer than 2 samples lie in [{t_start}, {t_end}] s")
+        if (first, last) == (0, len(self)) and name is None:
+            return self
+        return self._samples(slice(first, last), name or self.name)
+
     def split_at_gaps(self, max_gap_steps: float = MAX_GAP_STEPS) -> list[ImuSequence]:
         """One sequence per gap-free run (a step longer than ``max_gap_steps`` median steps is a gap; runs of fewer
         than 2 samples are dropped), named ``NAME_part<k>``: the readers' ``on_gap="keep"`` output, split."""

@@ -9,9 +9,10 @@ the RMSE of the 5-s displacement error over windows starting every second (m). R
 - ``airimu``: the AirIMU-corrected IMU integrated (strapdown) from the first state;
 - ``motion, est. attitude``: the motion model's body-frame velocity, fed with the attitude of the integrated
   corrected gyro and rotated into the world by it, integrated (each velocity held until the next, causal);
-- ``graph, est. attitude``: AirIMU preintegration factors between keyframes at every second motion output (18
-  samples, 0.09 s) and a motion factor at each keyframe (``factors.MotionFactor``, the predicted variance), a tight
-  prior on the first state, Levenberg-Marquardt; the motion model read the same estimated attitude;
+- ``graph, est. attitude``: ``airimu.fuse.fuse`` without GPS from the ground-truth start (``airimu fuse --no-gps
+  --start ground-truth --motion``): AirIMU preintegration factors between keyframes every ``motion.keyframe_s``, a
+  motion factor at each (``factors.MotionFactor``), a prior on the first state, Levenberg-Marquardt; the motion
+  model reads the attitude of the previous solution (``motion.passes``), never ground truth;
 - ``motion, GT attitude``: the motion row with the ground-truth attitude in and for the rotation into the world
   (AirIO's ground-truth-attitude variant).
 
@@ -26,15 +27,13 @@ import json
 import time
 from pathlib import Path
 
-import gtsam
 import numpy as np
 import torch
-from gtsam.symbol_shorthand import V, X
 
-from factors import from_export, motion_factors
+from airimu.fuse import fuse, imu_rate_trajectory
+from fusion.config import FuseConfig, MotionSettings
 from learned_imu.config import load_config
 from learned_imu.evaluation.evaluate import dead_reckoning
-from learned_imu.export import preintegration_export
 from learned_imu.geometry.preintegration import preintegrate
 from learned_imu.network.checkpoint import model_from_checkpoint, motion_from_checkpoint
 from learned_imu.network.inference import correct
@@ -43,7 +42,6 @@ from learned_imu.training.experiment import load_sequences
 
 AIRIO_EKF_ATE_M = {"MH_04_difficult": 2.308, "V1_03_difficult": 3.05, "V2_02_medium": 4.206}
 RTE_WINDOW_S = 5.0
-KEYFRAME_BLOCKS = 2
 
 
 def attitude(seq, gyro: np.ndarray) -> np.ndarray:
@@ -63,36 +61,11 @@ def integrated_velocity(seq, rot: np.ndarray, vel_body: np.ndarray, ends: np.nda
     return seq.gt.pos[0] + np.concatenate([np.zeros((1, 3)), moved])
 
 
-def graph_solution(seq, correction, rot, vel_body, var_body, ends) -> np.ndarray:
-    """Positions at every sample from the graph (module docstring): keyframe positions, linearly interpolated."""
-    keyframes = np.concatenate([[0], ends[KEYFRAME_BLOCKS - 1 :: KEYFRAME_BLOCKS]])
-    keyframes = np.unique(keyframes[keyframes < len(seq)])
-    export = preintegration_export(seq, keyframes, correction=correction)
-    graph = gtsam.NonlinearFactorGraph()
-    factors, times = from_export(export, X, V, lambda k: gtsam.symbol_shorthand.B(0))
-    for f in factors:
-        graph.add(f)
-    graph.add(gtsam.NonlinearEqualityConstantBias(gtsam.symbol_shorthand.B(0), gtsam.imuBias.ConstantBias()))
-    pose0 = gtsam.Pose3(gtsam.Rot3(seq.gt.rot[0]), seq.gt.pos[0])
-    graph.add(gtsam.PriorFactorPose3(X(0), pose0, gtsam.noiseModel.Isotropic.Sigma(6, 1e-4)))
-    graph.add(gtsam.PriorFactorVector(V(0), seq.gt.vel[0], gtsam.noiseModel.Isotropic.Sigma(3, 1e-3)))
-    index_of_end = {int(e): i for i, e in enumerate(ends)}
-    rows = [index_of_end[int(k)] for k in keyframes[1:]]
-    for f in motion_factors(vel_body[rows], var_body[rows], X, V, keys=np.arange(1, len(keyframes))):
-        graph.add(f)
-    dead = integrated_velocity(seq, rot, vel_body, ends)
-    values = gtsam.Values()
-    values.insert(gtsam.symbol_shorthand.B(0), gtsam.imuBias.ConstantBias())
-    for k, sample in enumerate(keyframes):
-        values.insert(X(k), gtsam.Pose3(gtsam.Rot3(rot[sample]), dead[sample]))
-        vel = seq.gt.vel[0] if k == 0 else rot[sample] @ vel_body[index_of_end[int(sample)]]
-        values.insert(V(k), np.asarray(vel, dtype=float))
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(50)
-    params.setRelativeErrorTol(1e-6)
-    result = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
-    pos = np.array([result.atPose3(X(k)).translation() for k in range(len(keyframes))])
-    return np.stack([np.interp(seq.t, seq.t[keyframes], pos[:, i]) for i in range(3)], axis=1)
+def graph_solution(seq, model, net, config: FuseConfig) -> np.ndarray:
+    """Positions at every sample from ``airimu.fuse.fuse`` without GPS (module docstring)."""
+    result = fuse(seq, None, model, config, motion_model=net, start="ground-truth")
+    dense = imu_rate_trajectory(result)
+    return np.stack([np.interp(seq.t, dense.t, dense.pos[:, i]) for i in range(3)], axis=1)
 
 
 def ate(seq, pos: np.ndarray) -> float:
@@ -116,7 +89,11 @@ def main() -> None:
     parser.add_argument("--motion", required=True, help="the motion model")
     parser.add_argument("--config", default="configs/euroc.yaml", help="its data.evaluate are the test flights")
     parser.add_argument("--json", help="write the rows here")
+    parser.add_argument("--keyframe-s", type=float, default=MotionSettings.keyframe_s, help="motion.keyframe_s")
+    parser.add_argument("--passes", type=int, default=MotionSettings.passes, help="motion.passes")
+    parser.add_argument("--cov-scale", type=float, default=MotionSettings.cov_scale, help="motion.cov_scale")
     args = parser.parse_args()
+    fuse_config = FuseConfig(motion=MotionSettings(args.keyframe_s, args.passes, args.cov_scale))
     model, _ = model_from_checkpoint(args.checkpoint)
     net, _ = motion_from_checkpoint(args.motion)
     config = load_config(args.config)
@@ -138,8 +115,7 @@ def main() -> None:
             result[f"vel_rmse_m_s_{name}"] = np.sqrt(np.mean(err**2, axis=0)).round(4).tolist()
             result[f"nees_per_axis_{name}"] = np.mean(err**2 / var, axis=0).round(3).tolist()
             tracks[f"motion, {name} attitude"] = integrated_velocity(seq, rot, vel, ends)
-            if name == "est":
-                tracks["graph, est attitude"] = graph_solution(seq, correction, est_rot, vel, var, ends)
+        tracks["graph, est attitude"] = graph_solution(seq, model, net, fuse_config)
         for name, pos in tracks.items():
             result[name] = {"ate_m": round(ate(seq, pos), 3), "rte_5s_m": round(rte(seq, pos), 3)}
         result["seconds"] = round(time.perf_counter() - start, 1)

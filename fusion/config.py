@@ -144,6 +144,31 @@ class OnlineSettings:
 
 
 @dataclass(frozen=True)
+class MotionSettings:
+    """The learned motion factors (``airimu fuse --motion``; ``factors.MotionFactor``): where they go and how much
+    they are trusted.
+
+    - ``keyframe_s``: with a motion model, a keyframe (each carrying a motion factor) every this many seconds besides
+      the graph's own (one per fix, or ``keyframe_s``); null: only the graph's own.
+    - ``passes``: how often the model is run and the graph solved with its velocities, each pass reading the
+      attitude of the previous solution (the first: the graph without motion factors), never ground truth.
+    - ``cov_scale``: every predicted variance is multiplied by this (AirIO's EKF uses 0.1; 1: as predicted).
+    """
+
+    keyframe_s: float | None = 0.2
+    passes: int = 2
+    cov_scale: float = 1.0
+
+    def __post_init__(self):
+        if self.keyframe_s is not None and not (math.isfinite(self.keyframe_s) and self.keyframe_s > 0):
+            raise ConfigError(f"motion.keyframe_s must be a positive interval (s) or null, got {self.keyframe_s!r}")
+        if not (isinstance(self.passes, int) and 1 <= self.passes <= 10):
+            raise ConfigError(f"motion.passes must be a whole number in [1, 10], got {self.passes!r}")
+        if not (math.isfinite(self.cov_scale) and self.cov_scale > 0):
+            raise ConfigError(f"motion.cov_scale must be a positive factor, got {self.cov_scale!r}")
+
+
+@dataclass(frozen=True)
 class FuseConfig:
     """What ``airimu fuse`` (``airimu.fuse.fuse``) and ``OnlineFusion`` fuse with; ``configs/fuse.yaml`` holds these
     defaults, commented.
@@ -153,7 +178,8 @@ class FuseConfig:
     - ``gps_sigma_m``: one-sigma GPS noise per axis (m) for fixes whose file gives none.
     - ``keyframe_s``: a keyframe every this many seconds; null: one at every fused fix (batch only).
     - ``estimate_bias``: a bias state per keyframe, with the sigmas and factor of ``bias``.
-    - ``graph``: robust loss, lever arm, priors and the solver; ``online``: the smoother of ``OnlineFusion``.
+    - ``graph``: robust loss, lever arm, priors and the solver; ``online``: the smoother of ``OnlineFusion``;
+      ``motion``: the learned motion factors, used when a motion model is given (``MotionSettings``).
     """
 
     gyro_noise_density: float = 0.004
@@ -164,6 +190,7 @@ class FuseConfig:
     bias: BiasStates = field(default_factory=BiasStates)
     graph: FusionSettings = field(default_factory=FusionSettings)
     online: OnlineSettings = field(default_factory=OnlineSettings)
+    motion: MotionSettings = field(default_factory=MotionSettings)
 
     def __post_init__(self):
         check_noise_density("gyro", self.gyro_noise_density, "gyro_noise_density")

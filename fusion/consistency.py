@@ -1,21 +1,22 @@
 """After a solve, the result checked against its own noise model: the normalised residual of each kind of factor.
 
-For every factor of a kind (GPS, IMU, bias random walk, prior) the squared whitened residual at the solution,
-summed, and divided by that kind's degrees of freedom: chi-square per degree of freedom. The degrees of freedom
-are the kind's share of the graph's redundancy (measurements minus states, m - n): for factor i with whitened
-Jacobian A_i, ``r_i = dim_i - trace(A_i Sigma_i A_i^T)`` (Sigma_i the joint marginal covariance of its free keys;
-keys held by a ``NonlinearEquality`` are known), the expected chi-square of that factor at the least-squares
+For every factor of a kind (GPS, IMU, bias random walk, learned motion, prior) the squared whitened residual at the
+solution, summed, and divided by that kind's degrees of freedom: chi-square per degree of freedom. The degrees of
+freedom are the kind's share of the graph's redundancy (measurements minus states, m - n): for factor i with
+whitened Jacobian A_i, ``r_i = dim_i - trace(A_i Sigma_i A_i^T)`` (Sigma_i the joint marginal covariance of its free
+keys; keys held by a ``NonlinearEquality`` are known), the expected chi-square of that factor at the least-squares
 solution of a linear-Gaussian graph (Foerstner's redundancy numbers; they sum to m - n). Divided by the factors'
-dimensions instead, a sparsely constrained graph reads far below 1 though its inputs are right (keyframes every
-0.1 s and a fix every 10 s: the states absorb nearly every IMU residual, 0.005 per dimension on the simulated
-drone, 2.2 per redundancy). With noise models that describe the data it is about 1. Far from 1 it says the inputs
-do not fit their own sigmas, whatever the trajectory looks like:
+dimensions instead, a sparsely constrained graph reads far below 1 though its inputs are right (keyframes every 0.1
+s and a fix every 10 s: the states absorb nearly every IMU residual, 0.005 per dimension on the simulated drone, 2.2
+per redundancy). With noise models that describe the data it is about 1. Far from 1 it says the inputs do not fit
+their own sigmas, whatever the trajectory looks like:
 
 - GPS well above 1: fixes in another unit or frame, a clock offset between the GPS and the IMU, GPS sigmas too small,
   or an over-confident IMU (its noise given as a variance) that leaves the misfit to the GPS;
 - IMU well above 1: IMU noise given as a variance where a sigma was expected (sigma^2 << sigma), a wrong unit, a
   time offset, or a bias the graph does not model (the raw samples of the PGO ablation without bias states); IMU
-  well below 1: noise given as sigma where sigma^2 was expected, or far too pessimistic.
+  well below 1: noise given as sigma where sigma^2 was expected, or far too pessimistic;
+- motion well above 1: a motion model on another platform than it learned, or variances too small.
 
 ``check`` returns one line per kind beyond ``HIGH`` or under ``LOW`` (under ``LOW`` only with at least ``LOW_MIN_DOF``
 degrees of freedom: with fewer, a tiny chi-square is chance), naming these causes; ``airimu fuse`` logs them and
@@ -47,6 +48,11 @@ CAUSES = {
         "low": "IMU noise given as sigma where sigma^2 is expected, or far too pessimistic",
     },
     "bias": {"high": "a bias random walk too small for the sensor", "low": "a bias random walk far too large"},
+    "motion": {
+        "high": "a motion model used on another platform or motion than it was trained on, or its variances too "
+        "small (fusion.motion.cov_scale)",
+        "low": "the motion model's variances far too large (fusion.motion.cov_scale)",
+    },
 }
 
 
@@ -79,8 +85,10 @@ class Residual:
 
 
 def kind_of(factor) -> str:
-    """``"gps"``, ``"imu"``, ``"bias"`` or ``"prior"`` (anything else) by the factor's class."""
+    """``"gps"``, ``"imu"``, ``"bias"``, ``"motion"`` or ``"prior"`` (anything else) by the factor's class."""
     name = type(factor).__name__
+    if name == "MotionFactor":
+        return "motion"
     if "GPS" in name or "Gps" in name:
         return "gps"
     if "Imu" in name or "IMU" in name:

@@ -29,17 +29,21 @@ import numpy as np
 
 from airimu_core.errors import GraphError, InputError
 from airimu_core.io import atomic_file
+from airimu_core.motion import BodyVelocities
 from airimu_core.rotations import matrix_to_quat_wxyz
 from airimu_core.sequence import GpsFixes
 from factors import (
     Export,
     GpsFactor,
+    MotionFactor,
     check_anchored,
     check_values,
     from_export,
     gps_noise,
     load_export,
+    motion_factors,
     solve_or_explain,
+    solve_with_python_factors,
 )
 from fusion.config import BiasStates, FusionSettings
 from fusion.initial import (
@@ -48,6 +52,7 @@ from fusion.initial import (
     interpolated_values,
     known_first_state,
     lm_params,
+    motion_values,
     priors_on_first,
     sequential_initial_values,
 )
@@ -134,18 +139,22 @@ def _check_observable(export: Export, gps: GpsFixes, keyframe: np.ndarray) -> No
 
 def build_graph(
     export: Export | str | Path,
-    gps: GpsFixes,
+    gps: GpsFixes | None,
     settings: FusionSettings | None = None,
     initial_state=None,
     bias: BiasStates | None = None,
+    motion: BodyVelocities | None = None,
 ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
-    """The pose graph of an export and GPS fixes, and its initial values (see the module docstring).
+    """The pose graph of an export, GPS fixes and learned body-frame velocities, and its initial values (see the
+    module docstring).
 
     ``initial_state`` (a ``gtsam.NavState``: pose world <- IMU, world velocity m/s) anchors the prior on keyframe 0;
     default: the export's ground truth at the first keyframe if it has one, else an initial alignment to the GPS
     track (position and velocity from the fixes, roll and pitch from gravity, yaw by search; its prior is loose:
-    ``ALIGNED_PRIOR_SIGMAS``). ``bias``: estimate a bias per keyframe interval (module docstring); the initial
-    values are then found on the graph without bias states, every bias starting at zero.
+    ``ALIGNED_PRIOR_SIGMAS``). ``gps``: None (or no fix) for none: dead reckoning, which needs a known first state.
+    ``bias``: estimate a bias per keyframe interval (module docstring); the initial values are then found on the
+    graph without bias states, every bias starting at zero. ``motion``: a ``factors.MotionFactor`` at every
+    keyframe inside its time span, the velocity and variance interpolated to the keyframe's time.
     """
     settings = settings or FusionSettings()
     export = export if isinstance(export, Export) else load_export(export)
@@ -161,7 +170,8 @@ def build_graph(
     # Gaussian itself): a redescending loss lets a drifting guess look better than the truth (its far-off residuals
     # saturate), Huber's linear tails do not
     init_loss = "huber" if settings.gps_robust else None
-    keyframe = _nearest_keyframes(times, gps.t)
+    gps = gps if gps is not None else GpsFixes(np.zeros(0), np.zeros((0, 3)), 1.0)
+    keyframe = _nearest_keyframes(times, gps.t) if len(gps.t) else np.zeros(0, dtype=int)
     gps_factors: dict[int, list] = {}
     init_gps: dict[int, list] = {}
     align_gps: dict[int, list] = {}  # Gaussian: the heading search compares far-off candidates, where a robust
@@ -177,10 +187,18 @@ def build_graph(
             if init_loss is not None:
                 factor = GpsFactor(X(index), pos, gps_noise(sigma, None), settings.lever_arm_m)
             align_gps.setdefault(int(index), []).append(factor)
-    if not gps_factors:
+    if len(gps.t) and not gps_factors:
         raise InputError(f"{export.path}: no GPS fix lies within half a keyframe interval of a keyframe")
+    moving = keyframe_motion_factors(motion, times) if motion is not None else []
+    for factor in moving:
+        graph.add(factor)
 
     first = known_first_state(export, initial_state)
+    if first is None and not gps_factors:
+        raise GraphError(
+            f"{export.name}: without GPS fixes the first state must be known: give an initial state (airimu fuse "
+            "--start) or a sequence with ground truth"
+        )
     if first is None:  # no ground truth: align the first state to the GPS track (attitude from gravity + a yaw search)
         _check_observable(export, gps, keyframe)
         first = aligned_first_state(export, times, gps, imu_factors, align_gps, settings)
@@ -194,10 +212,11 @@ def build_graph(
     check_anchored(graph)
     # two guesses, the one the (Huber-GPS) graph likes better wins: GPS-interpolated positions (robust to a strongly
     # biased IMU over short spans) or the window-by-window solution (robust to hours of attitude drift)
-    candidates = [
-        interpolated_values(export, times, gps, (pose0, vel0), settings),
-        sequential_initial_values(export, imu_factors, init_gps, priors, (pose0, vel0), settings),
-    ]
+    candidates = [sequential_initial_values(export, imu_factors, init_gps, priors, (pose0, vel0), settings)]
+    if gps_factors:
+        candidates.append(interpolated_values(export, times, gps, (pose0, vel0), settings))
+    if moving:  # without GPS the IMU alone drifts far: the learned velocities integrated instead
+        candidates.append(motion_values(export, times, motion, (pose0, vel0), settings))
     for values in candidates:
         check_values(graph, values)
     init_graph = graph
@@ -211,7 +230,7 @@ def build_graph(
     values = min(candidates, key=init_graph.error)
     if bias is None:
         return graph, values
-    others = [f for fixes in gps_factors.values() for f in fixes] + priors
+    others = [f for fixes in gps_factors.values() for f in fixes] + priors + moving
     return _with_bias_states(values, export, bias, settings.backend, others)
 
 
@@ -256,9 +275,23 @@ def solve(
 ) -> Solution:
     """Levenberg-Marquardt on the graph; the keyframe states as a ``Trajectory``."""
     settings = settings or FusionSettings()
-    optimiser = gtsam.LevenbergMarquardtOptimizer(graph, values, lm_params(settings))
+    params = lm_params(settings)
+    if settings.backend == "gtsam" and any(isinstance(graph.at(i), MotionFactor) for i in range(graph.size())):
+        # Python factors inside GTSAM's own LM get a copy of all values per call (factors.motion): stepped from Python
+        done = solve_or_explain(lambda: solve_with_python_factors(graph, values, params))
+        return Solution(trajectory_of(done.values, times), graph, done.values, done.iterations, done.error)
+    optimiser = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
     result = solve_or_explain(optimiser.optimize)
     return Solution(trajectory_of(result, times), graph, result, optimiser.iterations(), graph.error(result))
+
+
+def keyframe_motion_factors(motion: BodyVelocities, times: np.ndarray) -> list[MotionFactor]:
+    """A ``MotionFactor`` on (X(k), V(k)) for every keyframe time inside ``motion``'s span (interpolated)."""
+    vel, var, inside = motion.at(times)
+    keys = np.flatnonzero(inside)
+    if len(keys) == 0:
+        log.warning("no keyframe lies inside the motion model's time span: no motion factor")
+    return motion_factors(vel[keys], var[keys], X, V, keys=keys)
 
 
 def trajectory_of(values: gtsam.Values, times: np.ndarray, marginals: gtsam.Marginals | None = None) -> Trajectory:

@@ -111,6 +111,34 @@ def interpolated_values(export: Export, times: np.ndarray, gps, first, settings)
     return values
 
 
+def motion_values(export: Export, times: np.ndarray, motion, first, settings) -> gtsam.Values:
+    """Rotations dead-reckoned through the IMU deltas from ``first``, velocities the learned body-frame ones
+    (``motion``, an ``airimu_core.motion.BodyVelocities``) rotated into the world (the IMU's prediction outside its
+    span), positions their trapezoidal integral."""
+    body, _, inside = motion.at(times)
+    pose, vel = first
+    rot, rots, vels = pose.rotation(), [], []
+    for k in range(len(times)):
+        matrix = rot.matrix()
+        vel = matrix @ body[k] if inside[k] else vel
+        rots.append(rot)
+        vels.append(np.asarray(vel, dtype=float))
+        if k < len(export.delta_rot):
+            if not inside[k]:  # the IMU's velocity change over the interval
+                vel = vel + export.gravity * export.delta_dt[k] + matrix @ export.delta_vel[k]
+            rot = rot.compose(gtsam.Rot3(export.delta_rot[k]))
+    vels[0] = np.asarray(first[1], dtype=float)
+    steps = np.diff(times)[:, None] * 0.5 * (np.array(vels[:-1]) + np.array(vels[1:]))
+    pos = pose.translation() + np.concatenate([np.zeros((1, 3)), np.cumsum(steps, axis=0)])
+    values = gtsam.Values()
+    for k in range(len(times)):
+        values.insert(X(k), gtsam.Pose3(rots[k], pos[k]))
+        values.insert(V(k), vels[k])
+    if settings.backend == "gtsam":
+        values.insert(B(0), gtsam.imuBias.ConstantBias())
+    return values
+
+
 def sequential_initial_values(export: Export, imu_factors, gps_factors, priors, first, settings) -> gtsam.Values:
     """Initial values solved window by window (``settings.init_window`` keyframes, or more so that a window holds
     ``MIN_FIXES_PER_WINDOW`` GPS fixes): each window starts from the previous one's solved end state, predicts

@@ -13,7 +13,8 @@ the new keyframe through it, and add it with its GPS factors to ``gtsam.ISAM2`` 
 interpolation, as in ``fusion.graph``: choose ``keyframe_s`` so that keyframes fall on the fixes.
 
 Keys: ``X(k)`` (``Pose3`` world <- IMU), ``V(k)`` (world velocity, m/s), ``B(k)``. Only C++ factors enter the
-smoother (a Python ``CustomFactor`` gets a copy of all values per call). The samples are corrected, so each
+smoother (a Python ``CustomFactor`` gets a copy of all values per call), except, with a motion model, one
+``factors.MotionFactor`` per keyframe (ISAM2 re-linearises few factors per update). The samples are corrected, so each
 ``ImuFactor`` sees a zero bias as in the batch graph, but through its own ``B(k)`` held by a ``NonlinearEquality``
 rather than one shared ``B(0)``: a key in every factor sits in ISAM2's root clique and updates touch all factors,
 so the update time grows with the whole trajectory (BENCHMARKS.md, "Design measurements").
@@ -42,7 +43,7 @@ import gtsam
 import numpy as np
 
 from airimu_core.errors import AirImuError, InputError, real_array
-from factors import GpsFactor, gps_noise, learned_pim
+from factors import GpsFactor, MotionFactor, gps_noise, learned_pim
 from factors.noise import noise_mismatch
 from fusion.config import FuseConfig
 from fusion.graph import Trajectory
@@ -102,10 +103,16 @@ class OnlineFusion:
             the bias re-linearisation tolerance), the noise densities without a model (densities other than the
             defaults are compared with the stream's own white noise once ``NOISE_CHECK_SAMPLES`` samples are in, and
             warned about 3x under or 10x over it), ``graph`` (the prior on the first state, the GPS robust loss and
-            lever arm), and the bias states (``estimate_bias``; ``bias.factor`` must be ``"between"``).
+            lever arm), and the bias states (``estimate_bias``; ``bias.factor`` must be ``"between"``), ``motion``
+            (``cov_scale``).
+        motion_model: a ``MotionNet`` in eval mode, or None: a learned body-frame velocity factor
+            (``factors.MotionFactor``) at every keyframe, from the model streamed over the raw samples with the
+            attitude the graph predicts for them (the last keyframe's estimate carried by the corrected gyro; never
+            ground truth). The factor of keyframe k holds the model's last output before k's sample (at most one
+            block, 9 samples, earlier: choose ``keyframe_s`` a whole number of blocks to make them coincide).
     """
 
-    def __init__(self, model, gravity, initial_state, config: FuseConfig | None = None):
+    def __init__(self, model, gravity, initial_state, config: FuseConfig | None = None, motion_model=None):
         config = config or FuseConfig()
         if not isinstance(config, FuseConfig):
             raise InputError(f"OnlineFusion: config must be a fusion.config.FuseConfig, got {type(config).__name__}")
@@ -117,7 +124,14 @@ class OnlineFusion:
                 "OnlineFusion: the model was trained with remove_gravity (gravity in the IMU frame from "
                 "ground truth), which a live stream does not have"
             )
+        if motion_model is not None and motion_model.training:
+            raise InputError("OnlineFusion: call motion_model.eval() first (streaming needs eval mode)")
         self._model, self._keyframe_s, self._lag_s = model, online.keyframe_s, online.lag_s
+        self._motion, self._motion_scale = motion_model, config.motion.cov_scale
+        self._motion_stream = motion_model.initial_state(1) if motion_model is not None else None
+        self._motion_raw = np.zeros((0, 6))  # raw [gyro, acc] from sample self._base on, for the motion model
+        self._motion_outputs = 0  # outputs of the motion model so far: output j ends at sample (j + 1) block - 1
+        self._last_motion: tuple[int, np.ndarray, np.ndarray] | None = None  # (end sample, v_body, variance)
         self._gravity = _vector("gravity", gravity)
         self._first = first_state(initial_state, "OnlineFusion")
         self._prior_sigmas = (graph.prior_rot_sigma_rad, graph.prior_pos_sigma_m, graph.prior_vel_sigma_m_s)
@@ -183,6 +197,8 @@ class OnlineFusion:
                 self._start()
             elif ti - self._kf_t[-1] >= self._keyframe_s - 0.5 * (ti - self._t[first + i - 1 - self._base]):
                 self._decide_keyframe(ti, first + i)
+        if self._motion is not None:
+            self._motion_raw = np.concatenate([self._motion_raw, raw])
         if self._model is None:
             self._samples = np.concatenate([self._samples, np.hstack([raw, np.broadcast_to(self._density, raw.shape)])])
         else:
@@ -336,6 +352,10 @@ class OnlineFusion:
             graph.add(gtsam.BetweenFactorConstantBias(B(k - 1), B(k), gtsam.imuBias.ConstantBias(), walk))
         for factor in self._gps_for.pop(k, []):
             graph.add(factor)
+        if self._motion is not None:
+            factor = self._motion_factor(k, samples[0] - hat.gyroscope(), samples[2])
+            if factor is not None:
+                graph.add(factor)
         predicted = pim.predict(gtsam.NavState(*self._estimate(k - 1)), hat)
         values.insert(X(k), predicted.pose())
         values.insert(V(k), predicted.velocity())
@@ -347,6 +367,31 @@ class OnlineFusion:
             copies = tuple(np.array(x) for x in samples)
             self._intervals.append(_Interval(k - 1, copies, hat, int(result.getNewFactorsIndices()[0])))
             self._relinearise()
+
+    def _motion_factor(self, k: int, gyro: np.ndarray, dt: np.ndarray) -> MotionFactor | None:
+        """The motion model streamed over interval k-1 -> k (raw samples, the attitude before each one: keyframe
+        k-1's estimate carried by the corrected ``gyro`` (M, 3) rad/s over ``dt`` (M,) s); the factor on keyframe k
+        from its last output within one block before k's sample, None without one."""
+        import torch
+
+        rot = self._estimate(k - 1)[0].rotation()
+        up = np.empty((len(dt), 3))
+        for i in range(len(dt)):  # R^T e_z, before sample i
+            up[i] = rot.matrix()[2]
+            rot = rot.compose(gtsam.Rot3.Expmap(gyro[i] * dt[i]))
+        raw, self._motion_raw = self._motion_raw[: len(dt)], self._motion_raw[len(dt) :]
+        inputs = (torch.as_tensor(x[None], dtype=torch.float32) for x in (raw[:, :3], raw[:, 3:], up))
+        with torch.no_grad():
+            out, self._motion_stream = self._motion.stream(*inputs, self._motion_stream)
+        count = out.vel.shape[1]
+        if count:
+            self._motion_outputs += count
+            end = self._motion_outputs * self._motion.block - 1
+            self._last_motion = (end, out.vel[0, -1].double().numpy(), out.vel_var[0, -1].double().numpy())
+        if self._last_motion is None or self._last_motion[0] < self._kf_index[k] - self._motion.block:
+            return None
+        _, vel, var = self._last_motion
+        return MotionFactor(X(k), V(k), vel, var * self._motion_scale)
 
     def _bias_estimate(self, k: int) -> gtsam.imuBias.ConstantBias:
         return self._smoother.calculateEstimateConstantBias(B(k))
@@ -435,11 +480,13 @@ class OnlineFusion:
         if np.any(steps <= 0):
             bad = t[int(np.argmax(steps <= 0)) + 1 - len(before)]
             raise InputError(f"add_imu: timestamps must be strictly increasing; t={bad} s is not")
-        if self._model is not None and not self._rate_checked and len(self._t) + len(t) >= RATE_CHECK_SAMPLES:
-            self._rate_checked = True  # the model's training rate against the stream's, as correct() checks it
-            from learned_imu.network.inference import check_times_rate
+        models = [m for m in (self._model, self._motion) if m is not None]
+        if models and not self._rate_checked and len(self._t) + len(t) >= RATE_CHECK_SAMPLES:
+            self._rate_checked = True  # the models' training rate against the stream's, as correct() checks it
+            from learned_imu.network.rate import check_times_rate
 
-            check_times_rate(self._model, np.concatenate([self._t, t]), "add_imu")
+            for model in models:
+                check_times_rate(model, np.concatenate([self._t, t]), "add_imu")
         if self._model is None and self._noise_sample is not None:
             self._check_noise(t, raw)
         return t, raw

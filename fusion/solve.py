@@ -1,10 +1,11 @@
 """One call from an export and GPS fixes to a solved, checked graph: ``solve_export(export, fixes, config)``.
 
 The graph is ``fusion.graph.build_graph``'s (GPS factors with the config's robust loss, a keyframe state per export
-keyframe, optional bias states) solved by Levenberg-Marquardt; with bias states and GTSAM's factors it is
-re-linearised (``factors.solve_relinearised``: every interval preintegrated again around its solved bias until the
-biases move less than 1e-6). The result is then checked against its own noise model (``fusion.consistency``):
-chi-square per degree of freedom of each kind of factor, warned about when the inputs contradict their sigmas.
+keyframe, optional bias states and learned motion factors) solved by Levenberg-Marquardt; with bias states and
+GTSAM's factors it is re-linearised (``factors.solve_relinearised``: every interval preintegrated again around its
+solved bias until the biases move less than 1e-6). The result is then checked against its own noise model
+(``fusion.consistency``): chi-square per degree of freedom of each kind of factor, warned about when the inputs
+contradict their sigmas.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from __future__ import annotations
 import logging
 
 from airimu_core.export import Export
+from airimu_core.motion import BodyVelocities
 from airimu_core.sequence import GpsFixes
 from factors import solve_relinearised
 from fusion import consistency
@@ -22,12 +24,20 @@ from fusion.initial import lm_params
 log = logging.getLogger(__name__)
 
 
-def solve_export(export: Export, fixes: GpsFixes, config: FuseConfig | None = None) -> tuple[Solution, dict]:
+def solve_export(
+    export: Export,
+    fixes: GpsFixes | None,
+    config: FuseConfig | None = None,
+    initial_state=None,
+    motion: BodyVelocities | None = None,
+) -> tuple[Solution, dict]:
     """The solution and its ``fusion.consistency.residuals`` (module docstring); inconsistencies are logged as
-    warnings naming the export."""
+    warnings naming the export. ``fixes`` None: no GPS (``initial_state``, a ``gtsam.NavState`` at the first
+    keyframe, or the export's ground truth then anchors the graph); ``motion``: learned body-frame velocities, a
+    motion factor at every keyframe inside their span (``fusion.graph.build_graph``)."""
     config = config or FuseConfig()
     settings, bias = config.graph, config.bias_states
-    graph, values = build_graph(export, fixes, settings, bias=bias)
+    graph, values = build_graph(export, fixes, settings, initial_state, bias=bias, motion=motion)
     if bias is None or settings.backend != "gtsam":
         solution = solve(graph, values, export.keyframe_t, settings)
     else:

@@ -149,6 +149,21 @@ def fuse(
         help="seconds the GPS clock runs ahead of the IMU's, subtracted from every fix time (a GPS track that "
         "fits the IMU far better shifted is warned about with its estimated offset)",
     ),
+    motion: str = typer.Option(
+        None, help="a trained motion model (airimu train --model motion): learned body-frame velocity factors"
+    ),
+    start: str = typer.Option(
+        None,
+        help="the state at the log's first IMU sample: 'ground-truth' (the log's own) or 10 numbers "
+        "'x,y,z,qw,qx,qy,qz,vx,vy,vz' (position m, quaternion w first, world <- IMU, velocity m/s, world frame); "
+        "default: aligned to the GPS track. Needed with --no-gps",
+    ),
+    no_gps: bool = typer.Option(False, "--no-gps", help="fuse no GPS fix: dead reckoning from --start"),
+    gps_outage: list[str] = typer.Option(  # noqa: B008 (typer reads repeats as a list)
+        None,
+        help="START:DURATION, s from the log's first sample: the fixes inside are not fused (they still score the "
+        "result); repeatable. Shaded in fused.rrd and fused.png; summary.json gives the error at each one's end",
+    ),
 ) -> None:
     """Fuse a user's own IMU + GPS log: GPS factors (robust with the config's graph.gps_robust), learned (or fixed)
     IMU factors, optional bias states.
@@ -183,9 +198,15 @@ def fuse(
         raise typer.BadParameter("give both --gyro-noise-density and --acc-noise-density, or neither")
     if gyro_noise_density is not None:
         _check_noise_flags(gyro_noise_density, acc_noise_density)
+    outages = tuple(_outage(text) for text in gps_outage or [])
+    start_state = _start(start)
+    if no_gps and (gps or outages):
+        raise typer.BadParameter("--no-gps fuses no fix: leave out --gps and --gps-outage")
+    if no_gps and start_state is None:
+        raise typer.BadParameter("--no-gps needs --start (ground-truth, or the first state's 10 numbers)")
     sequence = _read_with_options(dataset, path, reader_option or [])
-    if not gps and sequence.gps is None:
-        raise typer.BadParameter(f"{path}: the log has no GPS fixes; pass --gps FILE")
+    if not gps and sequence.gps is None and not no_gps:
+        raise typer.BadParameter(f"{path}: the log has no GPS fixes; pass --gps FILE, or --no-gps with --start")
     request = FuseRequest(
         sequence=sequence,
         source=path,
@@ -196,13 +217,22 @@ def fuse(
         gps_every=gps_every,
         gps_time_offset_s=gps_time_offset,
         checkpoint=checkpoint,
+        motion_checkpoint=motion,
+        start=start_state,
+        no_gps=no_gps,
+        outages=outages,
     )
     done = run_fuse(request)
     summary = done.summary
     console = _wide_console()
-    console.print(
-        f"fused {done.fused_fixes} fixes over {summary.keyframes} keyframes of {summary.sequence}: "
+    against = (
         f"RMSE against all {summary.reference_fixes} fixes {summary.rmse_to_gps_m:.3f} m"
+        if summary.rmse_to_gps_m is not None
+        else "no fix to score against"
+    )
+    console.print(
+        f"fused {done.fused_fixes} fixes and {summary.motion_factors} motion factors over {summary.keyframes} "
+        f"keyframes of {summary.sequence}: {against}"
         + (
             f", ATE against the ground truth {summary.ate_aligned_m:.3f} m SE(3)-aligned, "
             f"{summary.ate_unaligned_m:.3f} m unaligned"
@@ -212,8 +242,52 @@ def fuse(
     )
     fits = ", ".join(f"{kind} {r['chi2_per_dof']:.3g}" for kind, r in (summary.normalised_residuals or {}).items())
     console.print(f"normalised residuals (chi-square per degree of freedom, about 1 when the inputs fit): {fits}")
+    for outage in summary.outages or []:
+        errors = [
+            f"{value:.3f} m against the {name}"
+            for name, value in (("ground truth", outage["error_to_truth_m"]), ("GPS", outage["error_to_gps_m"]))
+            if value is not None
+        ]
+        console.print(
+            f"GPS outage {outage['start_s']:g}+{outage['duration_s']:g} s: at its end "
+            + (", ".join(errors) if errors else "nothing to score against")
+        )
     for item in done.written:
         console.print(f"written: {item}")
+
+
+def _outage(text: str) -> tuple[float, float]:
+    """``--gps-outage START:DURATION`` -> (start, duration), s."""
+    parts = text.split(":")
+    try:
+        begin, duration = (float(p) for p in parts) if len(parts) == 2 else (math.nan, math.nan)
+    except ValueError:
+        begin = duration = math.nan
+    if not (math.isfinite(begin) and math.isfinite(duration) and begin >= 0 and duration > 0):
+        raise typer.BadParameter(f"--gps-outage: expected START:DURATION in s (START >= 0, DURATION > 0), got {text!r}")
+    return begin, duration
+
+
+def _start(text: str | None):
+    """``--start``: None, 'ground-truth', or a ``gtsam.NavState`` from 10 numbers (help text)."""
+    if text is None or text == "ground-truth":
+        return text
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 10 or not all(math.isfinite(v) for v in values):
+        raise typer.BadParameter(
+            f"--start: expected 'ground-truth' or 10 numbers x,y,z,qw,qx,qy,qz,vx,vy,vz, got {text!r}"
+        )
+    quat = values[3:7]
+    norm = math.sqrt(sum(q * q for q in quat))
+    if abs(norm - 1.0) > 1e-3:
+        raise typer.BadParameter(f"--start: the quaternion (qw, qx, qy, qz) must have unit norm, got {norm:.6g}")
+    import gtsam
+
+    rot = gtsam.Rot3.Quaternion(*(q / norm for q in quat))
+    return gtsam.NavState(rot, values[:3], values[7:])
 
 
 def _fuse_config(path: str, gps_sigma, bias, keyframes, gyro_noise_density, acc_noise_density):

@@ -12,6 +12,7 @@ RGB = tuple[int, int, int]
 
 GROUND_TRUTH: RGB = (25, 25, 25)
 GPS: RGB = (200, 0, 160)
+OUTAGE: RGB = (150, 150, 150)  # GPS outages: a grey band
 AXES: tuple[RGB, RGB, RGB] = ((214, 39, 40), (44, 160, 44), (31, 119, 180))  # x, y, z
 AXIS_NAMES = ("x", "y", "z")
 TRAIN: RGB = (60, 60, 60)  # training curves: the training set dark, the validation set orange

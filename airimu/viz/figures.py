@@ -33,7 +33,7 @@ def plot(result, path: str | Path) -> Path:
     fused = {name: marginal_track(solution) for name, (solution, _) in result.examples.items()}
     gps = next(iter(result.examples.values()))[1]
     truth = (seq.t, seq.gt.pos) if seq.gt is not None else None
-    return plot_run(path, seq.name, result.rows, fused, truth, (gps.t, gps.pos))
+    return plot_run(path, seq.name, result.rows, fused, truth, (gps.t, gps.pos), result.outages)
 
 
 def plot_run(
@@ -43,23 +43,25 @@ def plot_run(
     fused: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray | None]],
     truth: tuple[np.ndarray, np.ndarray] | None,
     gps: tuple[np.ndarray, np.ndarray] | None,
+    outages: tuple = (),
 ) -> Path:
     """Write ``figure(...)`` as a PNG, atomically."""
     from matplotlib import pyplot as plt
 
     from airimu_core.io import atomic_file
 
-    fig = figure(title, rows, fused, truth, gps)
+    fig = figure(title, rows, fused, truth, gps, outages)
     with atomic_file(path, "wb") as f:
         fig.savefig(f, format="png", dpi=DPI)
     plt.close(fig)
     return Path(path)
 
 
-def figure(title: str, rows: list, fused: dict, truth, gps):
+def figure(title: str, rows: list, fused: dict, truth, gps, outages: tuple = ()):
     """The matplotlib figure. ``rows``: ``airimu.experiments.pgo.PgoRow`` (setting, gps_hz, ate_mean_m, ate_std_m);
     ``fused``: setting -> (t (K,) s, pos (K, 3) m, pos_cov (K, 3, 3) m^2 or None) at the first rate;
-    ``truth``, ``gps``: (t (N,) s, pos (N, 3) m) or None."""
+    ``truth``, ``gps``: (t (N,) s, pos (N, 3) m) or None; ``outages``: (first, last) s of each GPS outage, shaded
+    grey in the error panels and drawn thick on the fused track of the top view."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -72,8 +74,8 @@ def figure(title: str, rows: list, fused: dict, truth, gps):
     top_down = fig.add_subplot(grid[:, 0])
     if rows:
         _ate_bars(fig.add_subplot(grid[0, 1]), rows, palette)
-    _errors(fig, grid[1, 1] if rows else grid[0, 1], fused, truth, palette, rate)
-    _top_down(top_down, rows, fused, truth, gps, palette, rate)
+    _errors(fig, grid[1, 1] if rows else grid[0, 1], fused, truth, palette, rate, outages)
+    _top_down(top_down, rows, fused, truth, gps, palette, rate, outages)
     fig.suptitle(f"{title}: IMU + GPS pose graph", fontsize=13)
     return fig
 
@@ -106,7 +108,7 @@ def _ate_bars(ax, rows: list, palette: dict) -> None:
     ax.grid(axis="y", alpha=0.3)
 
 
-def _errors(fig, cell, fused: dict, truth, palette: dict, rate) -> None:
+def _errors(fig, cell, fused: dict, truth, palette: dict, rate, outages=()) -> None:
     """One small panel per setting (shared axes): its error and its 3-sigma band, and how often the error stays
     inside the band."""
     names = list(fused)
@@ -131,6 +133,10 @@ def _errors(fig, cell, fused: dict, truth, palette: dict, rate) -> None:
             ax.plot(t, err, color=color, lw=1.2)
             if cov is not None:
                 label = f"  ({np.mean(err <= bound):.0%} inside 3σ)"
+        for k, (first, last) in enumerate(outages):
+            ax.axvspan(first, last, color="0.6", alpha=0.3, lw=0, label="GPS outage" if k == 0 else None)
+        if outages:
+            ax.legend(fontsize=7, loc="upper left", frameon=False)
         ax.set_title(f"{name}{label}", fontsize=9, color=color, loc="left")
         ax.set_ylim(bottom=0)
         ax.grid(alpha=0.3)
@@ -140,7 +146,7 @@ def _errors(fig, cell, fused: dict, truth, palette: dict, rate) -> None:
         ax.set_xlabel("time (s)")
 
 
-def _top_down(ax, rows: list, fused: dict, truth, gps, palette: dict, rate) -> None:
+def _top_down(ax, rows: list, fused: dict, truth, gps, palette: dict, rate, outages=()) -> None:
     shown = list(fused)
     ranked = sorted((r for r in rows if r.gps_hz == rate and r.setting in fused), key=lambda r: r.ate_mean_m)
     labels = {name: name for name in fused}
@@ -157,8 +163,12 @@ def _top_down(ax, rows: list, fused: dict, truth, gps, palette: dict, rate) -> N
         ax.plot(truth[1][:, 0], truth[1][:, 1], color=_rgb(colors.GROUND_TRUTH), lw=2.2, label="ground truth", zorder=2)
         ax.plot(*truth[1][0, :2], "k^", ms=8, label="start", zorder=5)
     for name in shown:
-        pos = fused[name][1]
+        t, pos = fused[name][0], fused[name][1]
         ax.plot(pos[:, 0], pos[:, 1], color=_rgb(palette[name]), lw=1.3, label=labels[name], zorder=3)
+        for k, (first, last) in enumerate(outages):
+            during = (t >= first) & (t <= last)
+            label = "GPS outage" if k == 0 and name == shown[0] else None
+            ax.plot(pos[during, 0], pos[during, 1], color="0.35", lw=5, alpha=0.35, label=label, zorder=2.5)
     at = f" (GPS {rate:g} Hz, seed 0)" if rate else ""
     ax.set(xlabel="x (m)", ylabel="y (m)", title=f"top view{at}", aspect="equal")
     ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=2, frameon=False)

@@ -55,6 +55,7 @@ VIEW_BACKGROUND = (250, 250, 250)  # light, so that the dark ground truth reads 
 LINE = rr.Radius.ui_points(1.2)
 TRUTH_LINE = rr.Radius.ui_points(2.5)  # drawn under the thinner fused lines
 MARKER = rr.Radius.ui_points(5.0)
+OUTAGE_LINE = rr.Radius.ui_points(7.0)  # a GPS outage's stretch, under the tracks
 
 
 @dataclass(frozen=True, eq=False)
@@ -111,9 +112,11 @@ def write_recording(
     gps: tuple[np.ndarray, np.ndarray] | None = None,
     imu: ImuSeries | None = None,
     application: str = "airimu",
+    outages: tuple = (),
 ) -> Path:
     """Write an ``.rrd`` (atomically). ``fused``: solved trajectories (with ``pos_cov`` for ellipsoids and
-    bounds); ``truth`` scores them; ``dead_reckoning``: raw/AirIMU integration; ``gps`` = (t (M,), pos (M, 3))."""
+    bounds); ``truth`` scores them; ``dead_reckoning``: raw/AirIMU integration; ``gps`` = (t (M,), pos (M, 3));
+    ``outages``: (first, last) s of each GPS outage (``_log_outages``)."""
     path = Path(path)
     with _saved(path, rr.RecordingStream(application)) as rec:
         plots = _Plots()
@@ -121,6 +124,8 @@ def write_recording(
         palette = colors.setting_colors(names + [t.name for t in dead_reckoning])
         _log_world(rec, fused, truth, dead_reckoning, gps, palette)
         _log_errors(rec, fused, truth, dead_reckoning, palette, plots)
+        if outages and fused:
+            _log_outages(rec, fused, outages, plots)
         if imu is not None:
             _log_imu(rec, imu, plots)
         scene = truth.pos if truth is not None else (fused[0].pos if fused else np.zeros((1, 3)))
@@ -266,6 +271,26 @@ def _log_errors(rec, fused, truth, dead_reckoning, palette, plots: _Plots) -> No
             drift.entities.append(entity)
             drift.include(error)
         plots.drift.append(drift)
+
+
+def _log_outages(rec, fused, outages, plots: _Plots) -> None:
+    """GPS outages: each one's stretch of every fused track as a thick grey band in the 3-D view
+    (``world/gps_outage/<k>``), and a series ``error/gps_outage`` at the top of the error plots' range inside an
+    outage and at zero outside (a band's outline in every error plot)."""
+    for k, (first, last) in enumerate(outages):
+        strips = [track.pos[(track.t >= first) & (track.t <= last)] for track in fused]
+        strips = [s for s in strips if len(s) >= 2]
+        if strips:
+            band = rr.LineStrips3D(strips, colors=colors.OUTAGE, radii=OUTAGE_LINE, labels=f"GPS outage {k + 1}")
+            rec.log(f"world/gps_outage/{k}", band, static=True)
+    t = fused[0].t
+    during = np.zeros(len(t), dtype=bool)
+    for first, last in outages:
+        during |= (t >= first) & (t <= last)
+    top = max((p.hi for p in plots.error if np.isfinite(p.hi)), default=1.0)
+    _send_series(rec, "error/gps_outage", t, (during * top)[:, None], ["GPS outage"], [colors.OUTAGE])
+    for plot in plots.error:
+        plot.entities.append("error/gps_outage")
 
 
 def _log_imu(rec, imu: ImuSeries, plots: _Plots) -> None:

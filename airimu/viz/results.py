@@ -27,6 +27,7 @@ class SequenceResult:
     correction: Correction
     rows: list  # airimu.experiments.pgo.PgoRow, empty for a single fused run
     examples: dict
+    outages: tuple = ()  # (first, last) time, s on the IMU clock, of each GPS outage: shaded in the views
 
 
 def record(result: SequenceResult, path: str | Path) -> Path:
@@ -46,7 +47,7 @@ def record(result: SequenceResult, path: str | Path) -> Path:
         ]
     gps = next(iter(result.examples.values()))[1]
     imu = ImuSeries(seq.t, seq.gyro, seq.acc, c.d_gyro.numpy(), c.d_acc.numpy(), c.gyro_cov.numpy(), c.acc_cov.numpy())
-    return write_recording(path, fused, truth, drift, (gps.t, gps.pos), imu)
+    return write_recording(path, fused, truth, drift, (gps.t, gps.pos), imu, outages=result.outages)
 
 
 def _at_times(sequence: ImuSequence, pos: np.ndarray, times: np.ndarray) -> np.ndarray:

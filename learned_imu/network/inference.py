@@ -19,8 +19,7 @@ import torch
 from airimu_core.errors import InputError
 from airimu_core.sequence import ImuSequence
 from learned_imu.network.model import AirImuNet, Correction, correct_sequence, device_of
-
-MAX_RATE_MISMATCH = 0.1  # relative difference of sample rates a model is applied across
+from learned_imu.network.rate import MAX_RATE_MISMATCH, check_times_rate  # noqa: F401 (part of this API)
 
 
 def correct(model: AirImuNet, sequence: ImuSequence, remove_gravity: bool | None = None) -> Correction:
@@ -62,16 +61,3 @@ def check_rate(model: AirImuNet, sequence: ImuSequence) -> None:
     """An ``InputError`` when ``sequence``'s median rate is more than ``MAX_RATE_MISMATCH`` off the rate the model
     was trained at (``model.trained_on``, from its checkpoint; nothing to check without it)."""
     check_times_rate(model, sequence.t, sequence.source or sequence.name)
-
-
-def check_times_rate(model: AirImuNet, t: np.ndarray, where: str) -> None:
-    """``check_rate`` for sample times ``t`` (s), the error naming ``where`` (a file, or a stream's method)."""
-    trained = getattr(model, "trained_on", None)  # a TrainedOn record (learned_imu.network.checkpoint) or None
-    if trained is None or len(t) < 2:
-        return
-    rate = 1.0 / float(np.median(np.diff(t)))
-    if abs(rate / trained.rate_hz - 1.0) > MAX_RATE_MISMATCH:
-        raise InputError(
-            f"{where}: IMU sampled at {rate:.1f} Hz, but the model was trained at {trained.rate_hz:.1f} Hz "
-            f"({', '.join(trained.datasets)}): resample the IMU to that rate or train a model on data at this rate"
-        )

@@ -21,10 +21,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
+import numpy as np
 import torch
 from torch import nn
 
 from airimu_core.errors import InputError
+from airimu_core.motion import BodyVelocities
 from learned_imu.network.model import (  # the correction model's encoder, decoder shape and padding
     ACC_INPUT_SCALE_M_S2,
     _decoder,
@@ -34,6 +36,7 @@ from learned_imu.network.model import (  # the correction model's encoder, decod
     encode_stream,
     initial_encoder_state,
 )
+from learned_imu.network.rate import check_times_rate
 
 LOG_VAR_LIMIT = 12.0  # |log(variance / initial variance)| is clamped to this: a factor e^12 ~ 1.6e5 either way
 INPUT_CHANNELS = 9  # acc (3), gyro (3), up axis in the body frame (3)
@@ -197,3 +200,21 @@ def _check(gyro: torch.Tensor, acc: torch.Tensor, up: torch.Tensor, min_samples:
         )
     if gyro.shape[1] < min_samples:
         raise InputError(f"MotionNet: need at least {min_samples} sample(s), got N = {gyro.shape[1]}")
+
+
+def predict_velocities(model: MotionNet, sequence, rot: np.ndarray) -> BodyVelocities:
+    """The motion model over a whole ``sequence`` (an ``ImuSequence``: its raw body-frame IMU) with the attitude
+    ``rot`` (N, 3, 3) world <- IMU that the estimator believes at each sample (never ground truth at test time):
+    one ``airimu_core.motion.BodyVelocities`` row per block end, at that sample's time. A model whose checkpoint
+    records another sample rate is refused (``learned_imu.network.inference.check_rate``, naming both)."""
+    check_times_rate(model, sequence.t, sequence.source or sequence.name)
+    rot = np.asarray(rot, dtype=float)
+    if rot.shape != (len(sequence.t), 3, 3) or not np.all(np.isfinite(rot)):
+        raise InputError(
+            f"{sequence.name}: the motion model's attitude must be {len(sequence.t)} finite rotations (N, 3, 3), "
+            f"got {rot.shape}"
+        )
+    as_input = lambda x: torch.as_tensor(np.ascontiguousarray(x), dtype=torch.float32)  # noqa: E731
+    out = motion_sequence(model, as_input(sequence.gyro), as_input(sequence.acc), as_input(rot[:, 2, :]))
+    ends = block_ends(len(sequence.t), model.block).numpy()
+    return BodyVelocities(sequence.t[ends], out.vel.double().numpy(), out.vel_var.double().numpy())

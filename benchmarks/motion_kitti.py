@@ -1,0 +1,155 @@
+"""KITTI without GPS, AI-IMU's protocol: t_rel / r_rel of the KITTI odometry devkit on AI-IMU's ten sequences.
+
+    python benchmarks/motion_kitti.py --fold 1 runs/kitti-motion-fold1/best.pt --fold 2 runs/kitti-motion-fold2/best.pt
+        [--json F] [--outages]
+
+Each sequence is AI-IMU's sample range of its raw drive (the issue's table), read from ``../shared/data/kitti_raw``;
+each is scored by the motion model of the fold that never saw it in training (``configs/kitti_motion_fold*.yaml``).
+Rows, every one from the ground-truth state at the range's first sample, without GPS, never aligned:
+
+- ``imu``: the raw IMU integrated (``airimu fuse --no-gps --start ground-truth``: the graph of IMU factors alone);
+- ``motion``: the same graph with a learned velocity factor every ``motion.keyframe_s`` (``airimu fuse --motion``);
+  the model reads the graph's attitude, never the ground truth's.
+
+The IMU factors use the raw samples with the noise densities of GTSAM's ``IMUKittiExampleGPS.py``
+(1.75e-4 rad/s/sqrt(Hz), 0.01 m/s^2/sqrt(Hz)). Metric: ``learned_imu.evaluation.kitti_odometry`` (10 Hz,
+segments of 100..800 m, t_rel %, r_rel deg/m). AI-IMU's table (t_rel %) is printed beside.
+
+``--outages``: GPS outages of 30 / 60 / 120 s at five places of each sequence (evenly spread over its middle), 1-Hz
+fixes from the ground truth with 0.3 m noise elsewhere; the mean position error at the end of the outage (the log
+solved up to then, ``airimu fuse --gps-outage``) for GTSAM's settings (raw IMU, its noise and bias states), the raw
+IMU with its fixed noise, and that + the motion factor.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+
+from airimu.experiments.pgo import GTSAM_EXAMPLE
+from airimu.fuse import fuse, imu_rate_trajectory
+from airimu_core.sequence import GpsFixes
+from fusion.config import FuseConfig, MotionSettings
+from learned_imu.config import load_config
+from learned_imu.evaluation.kitti_odometry import relative_errors, subsample_indices
+from learned_imu.network.checkpoint import motion_from_checkpoint
+from learned_imu.training.experiment import load_sequences
+
+# AI-IMU (Brossard et al. 2020), Table I and its text: t_rel (%) per KITTI odometry sequence; and its ranges
+SEQUENCES = {  # sequence: (drive, first row, last row of the 100 Hz drive), AI-IMU t_rel %
+    "00": ("2011_10_03_drive_0027", 0, 45692, 6.81),
+    "01": ("2011_10_03_drive_0042", 0, 12180, 1.56),
+    "02": ("2011_10_03_drive_0034", 0, 47935, 3.37),
+    "04": ("2011_09_30_drive_0016", 0, 2950, 1.22),
+    "05": ("2011_09_30_drive_0018", 0, 28659, 3.05),
+    "06": ("2011_09_30_drive_0020", 0, 11347, 1.57),
+    "07": ("2011_09_30_drive_0027", 0, 11545, 1.32),
+    "08": ("2011_09_30_drive_0028", 11231, 53650, 1.08),
+    "09": ("2011_09_30_drive_0033", 0, 16589, 0.82),
+    "10": ("2011_09_30_drive_0034", 0, 12744, 1.05),
+}
+GTSAM_NOISE = GTSAM_EXAMPLE.noise  # (gyro, acc) sigma densities of IMUKittiExampleGPS.py
+OUTAGES_S = (30.0, 60.0, 120.0)
+OUTAGE_PLACES = 5
+GPS_SIGMA_M = 0.3
+log = logging.getLogger("motion_kitti")
+
+
+def sequence_range(seq, drive_csv: Path, first: int, last: int):
+    """The drive ``seq`` cut to AI-IMU's rows [first, last] of the CSV (by time: the reader drops replayed rows)."""
+    t = np.loadtxt(drive_csv, delimiter=",", comments="#", usecols=0)
+    return seq.between(t[first], t[min(last, len(t) - 1)])
+
+
+def scores(seq, result) -> dict:
+    """t_rel / r_rel of a fused result against the ground truth, at 10 Hz."""
+    dense = imu_rate_trajectory(result)
+    at = np.searchsorted(seq.t, dense.t)
+    keep = seq.gt.valid[at]
+    t, at = dense.t[keep], at[keep]
+    pick = subsample_indices(t)
+    errors = relative_errors(seq.gt.rot[at[pick]], seq.gt.pos[at[pick]], dense.rot[keep][pick], dense.pos[keep][pick])
+    return {"t_rel_percent": round(errors.t_rel_percent, 3), "r_rel_deg_per_m": round(errors.r_rel_deg_per_m, 5)}
+
+
+def gps_from_truth(seq, seed: int) -> GpsFixes:
+    """1-Hz fixes from the ground truth with ``GPS_SIGMA_M`` noise per axis."""
+    index = np.flatnonzero(np.diff(np.floor(seq.t - seq.t[0]), prepend=-1) > 0)
+    index = index[seq.gt.valid[index]]
+    noise = np.random.default_rng(seed).normal(0.0, GPS_SIGMA_M, (len(index), 3))
+    return GpsFixes(seq.t[index], seq.gt.pos[index] + noise, GPS_SIGMA_M)
+
+
+def outage_rows(seq, net, motion_config: FuseConfig) -> list[dict]:
+    """Mean error at the end of ``OUTAGE_PLACES`` outages of each length, per setting (module docstring)."""
+    span = float(seq.t[-1] - seq.t[0])
+    fixes = gps_from_truth(seq, seed=0)
+    raw = FuseConfig(gyro_noise_density=GTSAM_NOISE[0], acc_noise_density=GTSAM_NOISE[1], keyframe_s=1.0)
+    gtsam_like = dataclasses.replace(raw, estimate_bias=True, bias=GTSAM_EXAMPLE.bias)
+    settings = {"GTSAM settings": (gtsam_like, None), "raw IMU": (raw, None)}
+    settings["raw IMU + motion"] = (dataclasses.replace(raw, motion=motion_config.motion), net)
+    rows = []
+    for duration in OUTAGES_S:
+        if span < duration + 20.0:
+            continue
+        starts = np.linspace(10.0, span - duration - 10.0, OUTAGE_PLACES)
+        outages = tuple((float(s), duration) for s in starts)
+        row = {"sequence": seq.name, "outage_s": duration}
+        for name, (config, model) in settings.items():
+            result = fuse(seq, fixes, None, config, motion_model=model, start="ground-truth", outages=outages)
+            ends = [np.linalg.norm(pos - seq.gt.pos[np.searchsorted(seq.t, t)]) for t, pos in result.outage_ends]
+            row[name] = round(float(np.mean(ends)), 3)
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--fold", nargs=2, action="append", metavar=("N", "CHECKPOINT"), required=True)
+    parser.add_argument("--only", nargs="*", help="sequences to run (default: all of the folds given)")
+    parser.add_argument("--keyframe-s", type=float, default=MotionSettings.keyframe_s, help="motion.keyframe_s")
+    parser.add_argument("--passes", type=int, default=MotionSettings.passes, help="motion.passes")
+    parser.add_argument("--cov-scale", type=float, default=MotionSettings.cov_scale, help="motion.cov_scale")
+    parser.add_argument("--outages", action="store_true", help="also the GPS-outage rows")
+    parser.add_argument("--json", help="write the rows here")
+    args = parser.parse_args()
+    logging.basicConfig(level=logging.ERROR)
+    motion = MotionSettings(args.keyframe_s, args.passes, args.cov_scale)
+    config = FuseConfig(gyro_noise_density=GTSAM_NOISE[0], acc_noise_density=GTSAM_NOISE[1], motion=motion)
+    rows, outages = [], []
+    for fold, checkpoint in args.fold:
+        net, trained = motion_from_checkpoint(checkpoint)
+        fold_config = load_config(f"configs/kitti_motion_fold{fold}.yaml")
+        trained_on = {spec.path for spec in trained.data.train}
+        drives = load_sequences(fold_config.data.evaluate, fold_config.data.root)
+        for spec, seq in zip(fold_config.data.evaluate, drives, strict=True):
+            name = next(k for k, v in SEQUENCES.items() if v[0] in spec.path)
+            if args.only and name not in args.only:
+                continue
+            if spec.path in trained_on:
+                raise SystemExit(f"{checkpoint} was trained on {spec.path}: not a test drive of fold {fold}")
+            drive, first, last, ai_imu = SEQUENCES[name]
+            part = sequence_range(seq, Path(fold_config.data.root) / spec.path, first, last)
+            part = dataclasses.replace(part, name=f"seq {name} ({drive})", gps=None)
+            start = time.perf_counter()
+            row = {"sequence": name, "drive": drive, "fold": fold, "ai_imu_t_rel_percent": ai_imu}
+            row["imu"] = scores(part, fuse(part, None, None, config, start="ground-truth"))
+            row["motion"] = scores(part, fuse(part, None, None, config, motion_model=net, start="ground-truth"))
+            row["seconds"] = round(time.perf_counter() - start, 1)
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+            if args.outages:
+                outages += outage_rows(part, net, config)
+    if args.json:
+        Path(args.json).write_text(json.dumps({"t_rel": rows, "outages": outages}, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -39,11 +39,11 @@ from airimu_core.errors import ConfigError, InputError
 from airimu_core.export import Export, save_export
 from airimu_core.sequence import GpsFixes, ImuSequence, gap_indices
 from fusion import consistency
-from fusion.config import BiasStates, FusionSettings
+from fusion.config import BiasStates, FusionSettings, MotionSettings
 from fusion.graph import Solution, build_graph, solve
 from learned_imu.config import load_config
 from learned_imu.export import fixes_on_samples, keyframes_every, nearest_samples, preintegration_export  # noqa: F401
-from learned_imu.network.checkpoint import model_from_checkpoint
+from learned_imu.network.checkpoint import model_from_checkpoint, motion_from_checkpoint
 from learned_imu.network.inference import correct
 from learned_imu.network.model import Correction
 from learned_imu.training.experiment import load_sequences, train_run, with_epochs
@@ -65,6 +65,7 @@ class PgoSetting:
     noise_density: tuple[float, float] | None = None
     bias: BiasStates | None = None
     key: str = ""
+    motion: bool = False  # a learned body-frame velocity factor at every keyframe (PgoConfig.motion)
 
     @property
     def file_key(self) -> str:
@@ -76,6 +77,11 @@ SETTINGS = (
     PgoSetting("AirIMU + fixed cov", "airimu", "fixed"),
     PgoSetting("raw IMU + learned cov", "raw", "learned"),
     PgoSetting("AirIMU + learned cov", "airimu", "learned"),
+)
+# with a motion model (PgoConfig.motion): the learned velocity factor beside the paper's best row and the raw IMU
+MOTION_SETTINGS = (
+    PgoSetting("AirIMU + learned cov + motion", "airimu", "learned", motion=True, key="airimu_learned"),
+    PgoSetting("raw IMU + fixed cov + motion", "raw", "fixed", motion=True, key="raw_fixed"),
 )
 # GTSAM's IMUKittiExampleGPS.py, from KittiEquivBiasedImu_metadata.txt: GyroscopeSigma 1.75e-4, AccelerometerSigma
 # 0.01 (continuous-time sigmas), AccelerometerBiasSigma 1.67e-4 and GyroscopeBiasSigma 2.91e-6 per sample (the
@@ -105,16 +111,16 @@ class PgoRow:
     imu_chi2_per_dof: float | None = None
 
 
-def settings_of(options: PgoOptions) -> tuple[PgoSetting, ...]:
-    """The settings ``options`` run: the four of ``SETTINGS``, their bias-state twins with ``bias_states``, and
-    ``GTSAM_EXAMPLE`` with ``gtsam_example``."""
+def settings_of(options: PgoOptions, motion: bool = False) -> tuple[PgoSetting, ...]:
+    """The settings ``options`` run: the four of ``SETTINGS``, their bias-state twins with ``bias_states``,
+    ``GTSAM_EXAMPLE`` with ``gtsam_example``, and ``MOTION_SETTINGS`` with a motion model."""
     twins = ()
     if options.bias_states is not None:
         twins = tuple(
             dataclasses.replace(s, name=f"{s.name} + bias states", bias=options.bias_states, key=f"{s.file_key}_bias")
             for s in SETTINGS
         )
-    return SETTINGS + twins + ((GTSAM_EXAMPLE,) if options.gtsam_example else ())
+    return SETTINGS + twins + ((GTSAM_EXAMPLE,) if options.gtsam_example else ()) + (MOTION_SETTINGS if motion else ())
 
 
 def write_exports(
@@ -128,8 +134,11 @@ def write_exports(
         index = np.unique(nearest_samples(sequence, sequence.gps.t)[0])
     else:
         index = keyframes_every(sequence, options.keyframe_interval_s)
-    out = {}
+    out, by_key = {}, {}
     for setting in settings:
+        if setting.file_key in by_key:  # a motion row shares its export with the row it extends
+            out[setting.name] = by_key[setting.file_key]
+            continue
         gyro, acc = (None, None) if setting.samples == "raw" else (correction.gyro.numpy(), correction.acc.numpy())
         if setting.covariance == "fixed":
             fixed = (options.fixed_gyro_noise_density, options.fixed_acc_noise_density)
@@ -139,7 +148,7 @@ def write_exports(
             covs = (correction.gyro_cov.numpy(), correction.acc_cov.numpy())
         if options.gap_noise_density is not None:
             covs = _with_gap_noise(sequence, covs, options.gap_noise_density)
-        out[setting.name] = preintegration_export(sequence, index, *covs, gyro, acc)
+        out[setting.name] = by_key[setting.file_key] = preintegration_export(sequence, index, *covs, gyro, acc)
         save_export(out[setting.name], folder / f"{sequence.name}__{setting.file_key}.npz")
     return out
 
@@ -222,11 +231,16 @@ def run_sequence(
     options: PgoOptions | None = None,
     fusion: FusionSettings | None = None,
     settings=None,
+    motion=None,
+    motion_settings: MotionSettings | None = None,
 ) -> tuple[list[PgoRow], dict]:
-    """Every setting (default: ``settings_of(options)``) x GPS rate x seed on one sequence; the rows, and one solution
-    per setting at the first rate and seed 0 (for recordings and plots)."""
+    """Every setting (default: ``settings_of(options)``, with the motion rows when ``motion``, a ``MotionNet``, is
+    given) x GPS rate x seed on one sequence; the rows, and one solution per setting at the first rate and seed 0
+    (for recordings and plots). A motion row solves the graph ``motion_settings.passes`` more times, each with the
+    model's velocities on the previous solution's attitude (the first: the row without them), never ground truth."""
     options, fusion = options or PgoOptions(), fusion or FusionSettings()
-    settings = settings or settings_of(options)
+    motion_settings = motion_settings or MotionSettings()
+    settings = settings or settings_of(options, motion is not None)
     if options.keyframes == "fixes":
         sequence = fixes_on_samples(sequence)
     exports = write_exports(sequence, correction, folder, options, settings)
@@ -246,6 +260,10 @@ def run_sequence(
                     )
                 graph, values = build_graph(export, fuse, fusion, bias=setting.bias)
                 solution = solve(graph, values, export.keyframe_t, fusion)
+                for _ in range(motion_settings.passes if setting.motion else 0):
+                    velocities = _velocities(motion, sequence, correction, solution, fuse, motion_settings)
+                    graph, values = build_graph(export, fuse, fusion, bias=setting.bias, motion=velocities)
+                    solution = solve(graph, values, export.keyframe_t, fusion)
                 ates.append(ate_m(solution, truth, fuse if options.score_span == "gps" else None))
                 fits.append(consistency.residuals(solution.graph, solution.values))
                 if seed == 0 and rate == options.gps_hz[0]:
@@ -280,6 +298,15 @@ def run_sequence(
     return rows, examples
 
 
+def _velocities(motion, sequence, correction, solution, fixes, settings: MotionSettings):
+    """The motion model's velocities over ``sequence`` with the attitude of ``solution`` (``airimu.fuse``'s)."""
+    from airimu.fuse import Fused, attitude_at_samples
+    from learned_imu.network.motion import predict_velocities
+
+    rot = attitude_at_samples(Fused(solution, correction, fixes, sequence))
+    return predict_velocities(motion, sequence, rot).scaled(settings.cov_scale)
+
+
 def _mean_per_dof(fits: list[dict], kind: str) -> float | None:
     """The mean over seeds of one kind's chi-square per degree of freedom, None where no seed's graph has it."""
     values = [fit[kind].per_dof for fit in fits if kind in fit]
@@ -304,11 +331,14 @@ def ablate_pgo(
     # resumes an interrupted run, drawing its epochs into run/training.rrd; returns at once if finished
     train_run(experiment, run, progress=progress, on_epoch=write_training_recording)
     model, _ = model_from_checkpoint(run / "best.pt")
+    motion = motion_from_checkpoint(config.motion)[0] if config.motion else None
     specs = config.sequences or experiment.data.evaluate or experiment.data.val
     results = []
     for sequence in load_sequences(specs, experiment.data.root):
         correction = correct(model, sequence, experiment.train.remove_gravity)
-        rows, examples = run_sequence(sequence, correction, out / "exports", config.options, config.fusion)
+        rows, examples = run_sequence(
+            sequence, correction, out / "exports", config.options, config.fusion, None, motion, config.motion_settings
+        )
         results.append(SequenceResult(sequence, correction, rows, examples))
     return results
 

@@ -1,13 +1,15 @@
 """Typed config of the PGO ablation (``configs/pgo_*.yaml``); keys match the dataclasses one to one.
 
 ``experiment`` is the training config of the model (relative to this file); ``run`` the run folder holding its
-checkpoints (relative to the working directory, trained there -- or resumed -- when ``best.pt`` is missing).
+checkpoints (relative to the working directory, trained there -- or resumed -- when ``best.pt`` is missing);
+``motion`` an optional motion model's checkpoint (relative to the working directory, trained beforehand).
 ``sequences`` default to the experiment's evaluation sequences (``data.evaluate``, else ``data.val``) and are
 read relative to its data root.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import typing
 from dataclasses import dataclass, field
@@ -16,7 +18,7 @@ from typing import Literal
 
 from airimu_core.config import check_noise_density, config_path, from_dict, read_yaml
 from airimu_core.errors import ConfigError
-from fusion.config import BiasStates, FuseConfig, FusionSettings
+from fusion.config import BiasStates, FuseConfig, FusionSettings, MotionSettings
 from learned_imu.config import SequenceConfig
 
 ScoreSpan = Literal["keyframes", "gps"]
@@ -84,6 +86,10 @@ class PgoConfig:
     sequences: tuple[SequenceConfig, ...] = ()
     options: PgoOptions = field(default_factory=PgoOptions)
     fusion: FusionSettings = field(default_factory=FusionSettings)
+    # a trained motion model (airimu train --model motion; its best.pt): adds the rows of
+    # airimu.experiments.pgo.MOTION_SETTINGS (a learned velocity factor at every keyframe); null: none
+    motion: str | None = None
+    motion_settings: MotionSettings = field(default_factory=MotionSettings)  # passes and cov_scale (keyframe_s unused)
 
 
 def load_pgo_config(path: str | Path) -> PgoConfig:
@@ -94,4 +100,4 @@ def load_pgo_config(path: str | Path) -> PgoConfig:
     experiment = Path(config.experiment)
     if not experiment.is_absolute():
         experiment = (path.parent / experiment).resolve()
-    return PgoConfig(config.name, str(experiment), config.run, config.sequences, config.options, config.fusion)
+    return dataclasses.replace(config, experiment=str(experiment))

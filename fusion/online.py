@@ -387,7 +387,8 @@ class OnlineFusion:
         if count:
             self._motion_outputs += count
             end = self._motion_outputs * self._motion.block - 1
-            self._last_motion = (end, out.vel[0, -1].double().numpy(), out.vel_var[0, -1].double().numpy())
+            if end >= getattr(self._motion, "warmup_samples", 0):  # its outputs before then were never trained
+                self._last_motion = (end, out.vel[0, -1].double().numpy(), out.vel_var[0, -1].double().numpy())
         if self._last_motion is None or self._last_motion[0] < self._kf_index[k] - self._motion.block:
             return None
         _, vel, var = self._last_motion

@@ -134,6 +134,9 @@ class MotionConfig:
     chunk_stride: int = 450  # distance between training chunk starts
     val_chunk_stride: int = 1800  # between validation chunk starts
     tilt_noise_deg: float = 2.0  # one-sigma tilt of each training chunk's attitude (learned_imu.training.motion)
+    # one-sigma angle of a random rotation of each training chunk's IMU frame (inputs and target alike: the same
+    # motion seen by an IMU mounted a little differently); 0: none
+    frame_rotation_deg: float = 0.0
     covariance: float = 0.1  # weight of the variance's negative log-likelihood in the loss
 
     @property
@@ -157,6 +160,7 @@ class MotionConfig:
             )
         _check(self, "motion.context", lambda v: v >= 0 and v % self.block == 0, f"a multiple of {self.block} >= 0")
         _check(self, "motion.tilt_noise_deg", lambda v: 0.0 <= v <= 45.0, "in [0, 45] degrees")
+        _check(self, "motion.frame_rotation_deg", lambda v: 0.0 <= v <= 45.0, "in [0, 45] degrees")
         _check(self, "motion.covariance", _non_negative, "a weight >= 0")
 
 

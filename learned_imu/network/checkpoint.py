@@ -142,7 +142,9 @@ class Checkpoint:
         """The motion model (``learned_imu.network.motion``) of a ``train.model: motion`` checkpoint, in eval mode,
         ``trained_on`` attached; checked as ``model`` is."""
         self._expect("motion", source)
-        return self._loaded(build_motion_model(self.config.motion), source)
+        model = self._loaded(build_motion_model(self.config.motion), source)
+        model.warmup_samples = self.config.motion.context  # its outputs before then were never trained
+        return model
 
     def _expect(self, kind: str, source) -> None:
         if self.kind != kind:

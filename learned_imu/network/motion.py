@@ -206,7 +206,8 @@ def predict_velocities(model: MotionNet, sequence, rot: np.ndarray) -> BodyVeloc
     """The motion model over a whole ``sequence`` (an ``ImuSequence``: its raw body-frame IMU) with the attitude
     ``rot`` (N, 3, 3) world <- IMU that the estimator believes at each sample (never ground truth at test time):
     one ``airimu_core.motion.BodyVelocities`` row per block end, at that sample's time. A model whose checkpoint
-    records another sample rate is refused (``learned_imu.network.inference.check_rate``, naming both)."""
+    records another sample rate is refused (``learned_imu.network.inference.check_rate``, naming both). Outputs
+    inside the model's warm-up (``warmup_samples``) are left out."""
     check_times_rate(model, sequence.t, sequence.source or sequence.name)
     rot = np.asarray(rot, dtype=float)
     if rot.shape != (len(sequence.t), 3, 3) or not np.all(np.isfinite(rot)):
@@ -217,4 +218,18 @@ def predict_velocities(model: MotionNet, sequence, rot: np.ndarray) -> BodyVeloc
     as_input = lambda x: torch.as_tensor(np.ascontiguousarray(x), dtype=torch.float32)  # noqa: E731
     out = motion_sequence(model, as_input(sequence.gyro), as_input(sequence.acc), as_input(rot[:, 2, :]))
     ends = block_ends(len(sequence.t), model.block).numpy()
-    return BodyVelocities(sequence.t[ends], out.vel.double().numpy(), out.vel_var.double().numpy())
+    warm = ends >= warmup_samples(model)
+    if not warm.any():
+        raise InputError(
+            f"{sequence.name}: {len(sequence.t)} samples do not outlast the motion model's warm-up "
+            f"({warmup_samples(model)} samples)"
+        )
+    vel, var = out.vel.double().numpy(), out.vel_var.double().numpy()
+    return BodyVelocities(sequence.t[ends[warm]], vel[warm], var[warm])
+
+
+def warmup_samples(model) -> int:
+    """Samples a stream must have seen before the model's outputs count: its training chunks' unsupervised context
+    (``motion.context``, set on a model read from a checkpoint; 0 for one built in code). Before then the GRUs are
+    still filling and neither velocity nor variance was ever trained."""
+    return int(getattr(model, "warmup_samples", 0))

@@ -180,7 +180,16 @@ def build_motion_chunks(
         raise ConfigError(f"{key}: no sequence listed (training needs at least one)")
     parts = []
     for s in sequences:
-        part = make_motion_chunks(s, m.chunk, stride, m.context, m.block, math.radians(m.tilt_noise_deg), True)
+        part = make_motion_chunks(
+            s,
+            m.chunk,
+            stride,
+            m.context,
+            m.block,
+            math.radians(m.tilt_noise_deg),
+            True,
+            math.radians(m.frame_rotation_deg),
+        )
         if part is None:
             log.warning("%s: no usable chunk of %d samples (gaps, invalid truth); skipped", s.name, m.context + m.chunk)
         else:

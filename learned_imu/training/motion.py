@@ -6,6 +6,10 @@ from rest and is supervised at the block ends after the context (the context war
 history does at test time). The target at a block end is the ground-truth body-frame velocity ``R_gt^T v_gt``
 (m/s). Chunks that cross a time gap or touch invalid ground truth are left out (``usable_windows``).
 
+With ``frame_rotation_rad`` > 0, each training chunk is also seen from a randomly rotated IMU frame: one rotation Q
+per chunk (random axis, angle ``N(0, frame_rotation_rad)``) applied to the gyro, the acc, the up axis and the target
+alike (the same motion measured by an IMU mounted slightly differently), against over-fitting a few flights.
+
 The attitude the network reads is the ground truth's, perturbed while training: each chunk's attitude is tilted by
 a random rotation about a horizontal world axis, of angle ``N(0, tilt_noise_rad)`` (roll/pitch error: what the up
 axis ``R^T e_z`` is sensitive to), drawn from torch's global generator (part of a checkpoint, so a resumed run
@@ -45,6 +49,7 @@ class MotionChunks:
     valid: torch.Tensor
     context_blocks: int
     tilt_noise_rad: float = 0.0
+    frame_rotation_rad: float = 0.0
 
     def __len__(self) -> int:
         return self.gyro.shape[0]
@@ -60,15 +65,25 @@ class MotionChunks:
 
     def predict(self, model, perturb: bool) -> Motion:
         """The model's output at the supervised block ends; the attitude tilted (module docstring) if ``perturb``."""
+        return self._predict(model, perturb)[0]
+
+    def _predict(self, model, perturb: bool) -> tuple[Motion, torch.Tensor]:
+        """The output and the target, both in the chunk's IMU frame: rotated by a random Q (module docstring) when
+        ``perturb`` and ``frame_rotation_rad`` > 0."""
         rot = _tilted(self.rot, self.tilt_noise_rad) if perturb and self.tilt_noise_rad > 0 else self.rot
-        out = model(self.gyro, self.acc, up_in_body(rot))
-        return Motion(out.vel[:, self.context_blocks :], out.vel_var[:, self.context_blocks :])
+        gyro, acc, up, target = self.gyro, self.acc, up_in_body(rot), self.target
+        if perturb and self.frame_rotation_rad > 0:
+            q = _random_rotations(len(self), self.frame_rotation_rad, gyro)  # new IMU frame <- old, per chunk
+            gyro, acc, up, target = (torch.einsum("bij,bnj->bni", q, x) for x in (gyro, acc, up, target))
+        out = model(gyro, acc, up)
+        return Motion(out.vel[:, self.context_blocks :], out.vel_var[:, self.context_blocks :]), target
 
     def loss(self, model, covariance: float, use_covariance: bool = True) -> torch.Tensor:
         """Mean squared velocity error plus, with ``use_covariance``, ``covariance`` times the NLL of the detached
-        error (module docstring); the attitude is perturbed while the model trains."""
-        out = self.predict(model, perturb=model.training)
-        err = out.vel - self.target
+        error (module docstring); the attitude (and, with ``frame_rotation_rad``, the IMU frame) is perturbed while
+        the model trains."""
+        out, target = self._predict(model, perturb=model.training)
+        err = out.vel - target
         weight = self.valid[..., None].to(err.dtype)
         count = weight.sum().clamp(min=1.0) * 3
         loss = (err.square() * weight).sum() / count
@@ -92,6 +107,7 @@ class MotionChunks:
             *(op(x) for x in (self.gyro, self.acc, self.rot, self.target, self.valid)),
             self.context_blocks,
             self.tilt_noise_rad,
+            self.frame_rotation_rad,
         )
 
 
@@ -103,6 +119,7 @@ def make_motion_chunks(
     block: int,
     tilt_noise_rad: float = 0.0,
     allow_empty: bool = False,
+    frame_rotation_rad: float = 0.0,
 ) -> MotionChunks | None:
     """Chunks of ``sequence`` (module docstring) starting every ``stride`` samples; ``length`` and ``context`` whole
     numbers of ``block`` samples. None (``allow_empty``) or an ``InputError`` when no chunk is usable."""
@@ -133,13 +150,27 @@ def make_motion_chunks(
         torch.ones(target.shape[:2], dtype=torch.bool),
         context // block,
         tilt_noise_rad,
+        frame_rotation_rad,
     )
 
 
 def concat_motion_chunks(parts: list[MotionChunks]) -> MotionChunks:
     first = parts[0]
     fields_ = zip(*((p.gyro, p.acc, p.rot, p.target, p.valid) for p in parts), strict=True)
-    return MotionChunks(*(torch.cat(list(f)) for f in fields_), first.context_blocks, first.tilt_noise_rad)
+    return MotionChunks(
+        *(torch.cat(list(f)) for f in fields_), first.context_blocks, first.tilt_noise_rad, first.frame_rotation_rad
+    )
+
+
+def _random_rotations(batch: int, sigma_rad: float, like: torch.Tensor) -> torch.Tensor:
+    """(B, 3, 3) rotations about uniformly random axes by angles N(0, sigma_rad), torch's global generator."""
+    axis = torch.nn.functional.normalize(torch.randn(batch, 3, dtype=like.dtype, device=like.device), dim=-1)
+    angle = torch.randn(batch, dtype=like.dtype, device=like.device) * sigma_rad
+    k = torch.zeros(batch, 3, 3, dtype=like.dtype, device=like.device)
+    k[:, 0, 1], k[:, 0, 2], k[:, 1, 2] = -axis[:, 2], axis[:, 1], -axis[:, 0]
+    k = k - k.mT
+    s, c = torch.sin(angle)[:, None, None], torch.cos(angle)[:, None, None]
+    return torch.eye(3, dtype=like.dtype, device=like.device) + s * k + (1 - c) * (k @ k)  # Rodrigues
 
 
 def _tilted(rot: torch.Tensor, sigma_rad: float) -> torch.Tensor:

@@ -15,7 +15,7 @@ from airimu_core.errors import ConfigError, DataError, InputError
 from learned_imu.config import MotionConfig
 from learned_imu.datasets.simulator import simulate
 from learned_imu.network.checkpoint import model_from_checkpoint, motion_from_checkpoint
-from learned_imu.network.motion import MotionNet, block_ends, motion_sequence, up_in_body
+from learned_imu.network.motion import Motion, MotionNet, block_ends, motion_sequence, up_in_body
 from learned_imu.training.losses import LossWeights
 from learned_imu.training.motion import _tilted, concat_motion_chunks, make_motion_chunks
 from learned_imu.training.train import Trainer
@@ -132,3 +132,30 @@ def test_airimu_train_trains_either_model_and_checkpoints_say_which(tmp_path):
         model_from_checkpoint(tmp_path / "run" / "motion" / "best.pt")
     with pytest.raises(DataError, match="holds a correction model, not a motion model"):
         motion_from_checkpoint(tmp_path / "run" / "correction" / "best.pt")
+
+
+def test_frame_rotation_turns_inputs_and_target_alike():
+    """The augmentation is one proper rotation per chunk applied to gyro, acc, up and target: lengths and the angles
+    between them are kept, the vectors themselves move."""
+    from learned_imu.training.motion import _random_rotations
+
+    torch.manual_seed(0)
+    q = _random_rotations(64, math.radians(10.0), torch.zeros(1, dtype=torch.float64))
+    assert torch.allclose(q @ q.mT, torch.eye(3, dtype=torch.float64).expand(64, 3, 3), atol=1e-12)
+    assert torch.allclose(torch.linalg.det(q), torch.ones(64, dtype=torch.float64))
+    chunks = make_motion_chunks(simulate("drone", duration_s=20.0, seed=1), 450, 450, 90, 9, 0.0, False, 0.2)
+    seen = {}
+
+    class Probe(torch.nn.Module):
+        def forward(self, gyro, acc, up):
+            seen.update(gyro=gyro, acc=acc, up=up)
+            blocks = gyro.shape[1] // 9
+            return Motion(torch.zeros(gyro.shape[0], blocks, 3), torch.ones(gyro.shape[0], blocks, 3))
+
+    out, target = chunks._predict(Probe(), perturb=True)
+    up = up_in_body(chunks.rot)
+    assert torch.allclose(seen["up"].norm(dim=-1), up.norm(dim=-1), atol=1e-5)
+    assert torch.allclose(target.norm(dim=-1), chunks.target.norm(dim=-1), atol=1e-4)
+    angle_before = torch.sum(chunks.acc[:, :1] * up[:, :1], dim=-1)
+    assert torch.allclose(torch.sum(seen["acc"][:, :1] * seen["up"][:, :1], dim=-1), angle_before, atol=1e-4)
+    assert (seen["up"] - up).abs().max() > 0.05  # and they did turn

@@ -251,13 +251,10 @@ def _solve(sequence, fixes, correction, config, motion_model, initial_state, end
     blind = dataclasses.replace(sequence, gt=None)  # the first state from the GPS track or start, not ground truth
     export = preintegration_export(blind, index, correction=correction)
     solution, found = solve_export(export, fixes, config, initial_state)
-    fused = fixes if fixes is not None else GpsFixes(np.zeros(0), np.zeros((0, 3)), GPS_SIGMA_UNKNOWN_M)
+    fused = fixes if fixes is not None else GpsFixes.none()
     velocities = None
     for _ in range(config.motion.passes if motion_model is not None else 0):  # each pass on the last attitude
-        from learned_imu.network.motion import predict_velocities
-
-        rot = attitude_at_samples(Fused(solution, correction, fused, sequence))
-        velocities = predict_velocities(motion_model, sequence, rot).scaled(config.motion.cov_scale)
+        velocities = motion_on(Fused(solution, correction, fused, sequence), motion_model, config.motion.cov_scale)
         solution, found = solve_export(export, fixes, config, initial_state, velocities)
     return Fused(solution, correction, fused, sequence, found, velocities)
 
@@ -460,7 +457,7 @@ def write_outputs(result: Fused, folder: Path, reference: GpsFixes | None = None
             _outage_errors(begin, duration, end, truth_in_fused, reference)
             for (begin, duration), end in zip(result.outages, result.outage_ends, strict=True)
         ],
-        0 if result.motion is None else int(len(result.motion.at(trajectory.t)[2].nonzero()[0])),
+        result.residuals["motion"].factors if "motion" in result.residuals else 0,
     )
     written.append(write_json_atomic(folder / "summary.json", dataclasses.asdict(summary)))
     return summary, written
@@ -484,6 +481,15 @@ def _outage_errors(begin: float, duration: float, end, truth, reference: GpsFixe
         "error_to_truth_m": to_truth,
         "error_to_gps_m": to_gps,
     }
+
+
+def motion_on(result: Fused, motion_model, cov_scale: float) -> BodyVelocities:
+    """The motion model's velocities over ``result``'s sequence, reading ``result``'s attitude at every sample
+    (``attitude_at_samples``: the estimate, never ground truth), every variance times ``cov_scale``."""
+    from learned_imu.network.motion import predict_velocities
+
+    rot = attitude_at_samples(result)
+    return predict_velocities(motion_model, result.sequence, rot).scaled(cov_scale)
 
 
 def attitude_at_samples(result: Fused) -> np.ndarray:

@@ -101,6 +101,11 @@ class GpsFixes:
         """The fixes at ``index`` (a slice, boolean mask or index array)."""
         return GpsFixes(self.t[index], self.pos[index], self.sigma[index])
 
+    @classmethod
+    def none(cls) -> GpsFixes:
+        """No fix at all (a log fused without GPS)."""
+        return cls(np.zeros(0), np.zeros((0, 3)), GPS_SIGMA_UNKNOWN_M)
+
     def with_sigma(self, sigma_m: float) -> GpsFixes:
         """The same fixes with one-sigma ``sigma_m`` (m) on every axis of every fix."""
         return GpsFixes(self.t, self.pos, float(sigma_m))

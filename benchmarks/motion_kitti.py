@@ -32,10 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-from airimu.experiments.pgo import GTSAM_EXAMPLE
+from airimu.experiments.pgo import GTSAM_EXAMPLE, gps_for
 from airimu.fuse import fuse, imu_rate_trajectory
 from airimu_core.errors import InputError
-from airimu_core.sequence import GpsFixes
 from fusion.config import FuseConfig, MotionSettings
 from learned_imu.config import load_config
 from learned_imu.evaluation.kitti_odometry import relative_errors, subsample_indices
@@ -91,18 +90,10 @@ def ticks_10hz(t: np.ndarray) -> np.ndarray:
         return np.unique(nearest[np.abs(t[nearest] - ticks) < 0.05])
 
 
-def gps_from_truth(seq, seed: int) -> GpsFixes:
-    """1-Hz fixes from the ground truth with ``GPS_SIGMA_M`` noise per axis."""
-    index = np.flatnonzero(np.diff(np.floor(seq.t - seq.t[0]), prepend=-1) > 0)
-    index = index[seq.gt.valid[index]]
-    noise = np.random.default_rng(seed).normal(0.0, GPS_SIGMA_M, (len(index), 3))
-    return GpsFixes(seq.t[index], seq.gt.pos[index] + noise, GPS_SIGMA_M)
-
-
 def outage_rows(seq, net, motion_config: FuseConfig) -> list[dict]:
     """Mean error at the end of ``OUTAGE_PLACES`` outages of each length, per setting (module docstring)."""
     span = float(seq.t[-1] - seq.t[0])
-    fixes = gps_from_truth(seq, seed=0)
+    fixes = gps_for(seq, 1.0, GPS_SIGMA_M, seed=0, source="simulated")[0]  # 1-Hz fixes from the ground truth
     raw = FuseConfig(gyro_noise_density=GTSAM_NOISE[0], acc_noise_density=GTSAM_NOISE[1], keyframe_s=1.0)
     gtsam_like = dataclasses.replace(raw, estimate_bias=True, bias=GTSAM_EXAMPLE.bias)
     settings = {"GTSAM settings": (gtsam_like, None), "raw IMU": (raw, None)}

@@ -170,7 +170,7 @@ def build_graph(
     # Gaussian itself): a redescending loss lets a drifting guess look better than the truth (its far-off residuals
     # saturate), Huber's linear tails do not
     init_loss = "huber" if settings.gps_robust else None
-    gps = gps if gps is not None else GpsFixes(np.zeros(0), np.zeros((0, 3)), 1.0)
+    gps = gps if gps is not None else GpsFixes.none()
     keyframe = _nearest_keyframes(times, gps.t) if len(gps.t) else np.zeros(0, dtype=int)
     gps_factors: dict[int, list] = {}
     init_gps: dict[int, list] = {}

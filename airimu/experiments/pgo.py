@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from airimu.experiments.pgo_config import GPS_SOURCES, PgoConfig, PgoOptions
+from airimu.fuse import Fused, motion_on
 from airimu.viz.results import SequenceResult, marginal_track, record  # noqa: F401 (re-exported)
 from airimu_core.errors import ConfigError, InputError
 from airimu_core.export import Export, save_export
@@ -261,7 +262,8 @@ def run_sequence(
                 graph, values = build_graph(export, fuse, fusion, bias=setting.bias)
                 solution = solve(graph, values, export.keyframe_t, fusion)
                 for _ in range(motion_settings.passes if setting.motion else 0):
-                    velocities = _velocities(motion, sequence, correction, solution, fuse, motion_settings)
+                    fused = Fused(solution, correction, fuse, sequence)
+                    velocities = motion_on(fused, motion, motion_settings.cov_scale)
                     graph, values = build_graph(export, fuse, fusion, bias=setting.bias, motion=velocities)
                     solution = solve(graph, values, export.keyframe_t, fusion)
                 ates.append(ate_m(solution, truth, fuse if options.score_span == "gps" else None))
@@ -296,15 +298,6 @@ def run_sequence(
                         " (expected: raw samples without bias states)" if expected else "",
                     )
     return rows, examples
-
-
-def _velocities(motion, sequence, correction, solution, fixes, settings: MotionSettings):
-    """The motion model's velocities over ``sequence`` with the attitude of ``solution`` (``airimu.fuse``'s)."""
-    from airimu.fuse import Fused, attitude_at_samples
-    from learned_imu.network.motion import predict_velocities
-
-    rot = attitude_at_samples(Fused(solution, correction, fixes, sequence))
-    return predict_velocities(motion, sequence, rot).scaled(settings.cov_scale)
 
 
 def _mean_per_dof(fits: list[dict], kind: str) -> float | None:

@@ -216,7 +216,7 @@ def predict_velocities(model: MotionNet, sequence, rot: np.ndarray) -> BodyVeloc
             f"got {rot.shape}"
         )
     as_input = lambda x: torch.as_tensor(np.ascontiguousarray(x), dtype=torch.float32)  # noqa: E731
-    out = motion_sequence(model, as_input(sequence.gyro), as_input(sequence.acc), as_input(rot[:, 2, :]))
+    out = motion_sequence(model, as_input(sequence.gyro), as_input(sequence.acc), as_input(up_in_body(rot)))
     ends = block_ends(len(sequence.t), model.block).numpy()
     warm = ends >= warmup_samples(model)
     if not warm.any():

@@ -150,11 +150,11 @@ def test_motion_rows_run_on_the_solution_attitude_and_beat_their_rows_between_sp
     body = body + np.random.default_rng(0).normal(0.0, 0.05, body.shape)
     calls = []
 
-    def velocities(motion, sequence, correction, solution, fixes, settings):
-        calls.append(solution.trajectory.rot)  # the solution it reads
-        return BodyVelocities(sequence.t[ends], body, np.full_like(body, 0.05**2))
+    def velocities(result, motion, cov_scale):
+        calls.append(result.solution.trajectory.rot)  # the solution it reads
+        return BodyVelocities(result.sequence.t[ends], body, np.full_like(body, 0.05**2))
 
-    monkeypatch.setattr(pgo, "_velocities", velocities)
+    monkeypatch.setattr(pgo, "motion_on", velocities)
     gyro, acc = torch.as_tensor(seq.gyro), torch.as_tensor(seq.acc)
     zero = torch.zeros_like(gyro)
     raw = Correction(gyro, acc, zero, zero, torch.full_like(gyro, 2e-3**2), torch.full_like(gyro, 2e-2**2))

@@ -246,8 +246,9 @@ def _solve(sequence, fixes, correction, config, motion_model, initial_state, end
     with the model's velocities on the previous solution's attitude. ``end_keyframe``: a keyframe at the last
     sample too (the state there is what the caller wants)."""
     index = _keyframes(sequence, fixes, config, motion_model is not None, initial_state is not None)
-    if end_keyframe:
-        index = np.unique(np.append(index, len(sequence.t) - 1))
+    if end_keyframe:  # the last keyframe moves there if it is one sample short (an interval needs two samples)
+        last = len(sequence.t) - 1
+        index = np.unique(np.append(index[index < last - 1], last))
     blind = dataclasses.replace(sequence, gt=None)  # the first state from the GPS track or start, not ground truth
     export = preintegration_export(blind, index, correction=correction)
     solution, found = solve_export(export, fixes, config, initial_state)

@@ -17,7 +17,9 @@ sigma 0.05 m/s, with that variance. Variants (one ``run_variant``):
 4. without, Python-driven LM: ``factors.motion.solve_with_python_factors`` on graph 1 (the loop's own overhead);
 5. MotionFactor, Python-driven LM: the same loop with the motion factors, which then get the ``Values`` by reference;
 6. MotionTerms, Python-driven LM: the same loop with the motion factors evaluated together in numpy
-   (``factors.motion.MotionTerms``, ``extra=``).
+   (``factors.motion.MotionTerms``, ``extra=``);
+7. MotionFactor, fusion.graph.solve: graph 2 handed to the estimator's ``solve`` (what ``airimu fuse --motion`` runs),
+   which takes the motion factors out of the graph into 6.
 
 Reported: median solve time, ratio to 1, LM iterations, final error (of the graph with the motion factors where the
 variant has them), velocity RMS error against the truth; and the per-call costs behind them. Variants 2, 5 and 6 reach
@@ -41,6 +43,7 @@ import numpy as np
 from gtsam.symbol_shorthand import B, V, X
 
 from factors.motion import MotionTerms, motion_factors, solve_with_python_factors
+from fusion.graph import solve
 
 GRAVITY_M_S2 = 9.81
 KEYFRAME_S = 0.1
@@ -138,6 +141,11 @@ def python_lm(graph: gtsam.NonlinearFactorGraph, problem: Problem) -> tuple[gtsa
     return solution.values, solution.iterations
 
 
+def fusion_solve(graph: gtsam.NonlinearFactorGraph, problem: Problem) -> tuple[gtsam.Values, int]:
+    solution = solve(graph, problem.initial, np.arange(len(problem.truth), dtype=float))
+    return solution.values, solution.iterations
+
+
 def python_lm_terms(graph: gtsam.NonlinearFactorGraph, problem: Problem) -> tuple[gtsam.Values, int]:
     solution = solve_with_python_factors(graph, problem.initial, extra=(MotionTerms(problem.motion),))
     return solution.values, solution.iterations
@@ -150,6 +158,7 @@ VARIANTS = [
     Variant("without, Python-driven LM", lambda p: p.base, python_lm, False),
     Variant("MotionFactor, Python-driven LM", lambda p: with_factors(p.base, p.motion), python_lm, True),
     Variant("MotionTerms, Python-driven LM", lambda p: p.base, python_lm_terms, True),
+    Variant("MotionFactor, fusion.graph.solve", lambda p: with_factors(p.base, p.motion), fusion_solve, True),
 ]
 
 

@@ -36,6 +36,7 @@ from factors import (
     Export,
     GpsFactor,
     MotionFactor,
+    MotionTerms,
     check_anchored,
     check_values,
     from_export,
@@ -277,12 +278,29 @@ def solve(
     settings = settings or FusionSettings()
     params = lm_params(settings)
     if settings.backend == "gtsam" and any(isinstance(graph.at(i), MotionFactor) for i in range(graph.size())):
-        # Python factors inside GTSAM's own LM get a copy of all values per call (factors.motion): stepped from Python
-        done = solve_or_explain(lambda: solve_with_python_factors(graph, values, params))
+        # Python factors inside GTSAM's own LM get a copy of all values per call (factors.motion): stepped from Python,
+        # the motion factors evaluated together in numpy (MotionTerms); the returned graph keeps them
+        rest, motion = split_motion_factors(graph)
+        extra = (MotionTerms(motion),) if motion else ()
+        done = solve_or_explain(lambda: solve_with_python_factors(rest, values, params, extra=extra))
         return Solution(trajectory_of(done.values, times), graph, done.values, done.iterations, done.error)
     optimiser = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
     result = solve_or_explain(optimiser.optimize)
     return Solution(trajectory_of(result, times), graph, result, optimiser.iterations(), graph.error(result))
+
+
+def split_motion_factors(graph: gtsam.NonlinearFactorGraph) -> tuple[gtsam.NonlinearFactorGraph, list[MotionFactor]]:
+    """(the graph without its ``MotionFactor``s, those factors); a motion factor on a key no other factor holds stays
+    in the graph (the elimination ordering is the remaining graph's)."""
+    rest, motion = gtsam.NonlinearFactorGraph(), []
+    factors = [graph.at(i) for i in range(graph.size())]
+    held = {key for f in factors if not isinstance(f, MotionFactor) for key in f.keys()}
+    for factor in factors:
+        if isinstance(factor, MotionFactor) and factor.pose_key in held and factor.vel_key in held:
+            motion.append(factor)
+        else:
+            rest.push_back(factor)
+    return rest, motion
 
 
 def keyframe_motion_factors(motion: BodyVelocities, times: np.ndarray) -> list[MotionFactor]:

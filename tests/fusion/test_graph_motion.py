@@ -105,6 +105,21 @@ def test_fuse_bridges_a_gps_outage_with_motion_factors(drone, tmp_path, monkeypa
     assert (tmp_path / "b" / "fused.png").stat().st_size > 0
 
 
+def test_an_outage_ending_one_sample_after_a_keyframe_is_scored(drone, monkeypatch):
+    seq, _ = drone
+    velocities = body_velocities(seq)
+    import learned_imu.network.motion as motion_module
+
+    monkeypatch.setattr(motion_module, "predict_velocities", lambda model, sequence, rot: velocities)
+    dt = float(seq.t[1] - seq.t[0])
+    config = FuseConfig(gyro_noise_density=2e-3, acc_noise_density=2e-2, keyframe_s=0.2)
+    # the 0.2-s grid has a keyframe one sample before the outage's end: it moves to the end (was a singular interval)
+    done = fuse(seq, config=config, motion_model=object(), outages=((10.0, 15.0 + 1.2 * dt),))
+    (end_t, end_pos), = done.outage_ends
+    assert end_t == pytest.approx(seq.t[0] + 15.0 + 10.0 + dt)
+    assert np.linalg.norm(end_pos - seq.gt.pos[np.searchsorted(seq.t, end_t)]) < 1.0
+
+
 def test_fuse_without_gps_needs_a_start(drone):
     seq, _ = drone
     blind = dataclasses.replace(seq, gps=None)

@@ -115,7 +115,7 @@ def test_an_outage_ending_one_sample_after_a_keyframe_is_scored(drone, monkeypat
     config = FuseConfig(gyro_noise_density=2e-3, acc_noise_density=2e-2, keyframe_s=0.2)
     # the 0.2-s grid has a keyframe one sample before the outage's end: it moves to the end (was a singular interval)
     done = fuse(seq, config=config, motion_model=object(), outages=((10.0, 15.0 + 1.2 * dt),))
-    (end_t, end_pos), = done.outage_ends
+    ((end_t, end_pos),) = done.outage_ends
     assert end_t == pytest.approx(seq.t[0] + 15.0 + 10.0 + dt)
     assert np.linalg.norm(end_pos - seq.gt.pos[np.searchsorted(seq.t, end_t)]) < 1.0
 

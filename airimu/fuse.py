@@ -256,7 +256,7 @@ def _solve(sequence, fixes, correction, config, motion_model, initial_state, end
     velocities = None
     for _ in range(config.motion.passes if motion_model is not None else 0):  # each pass on the last attitude
         velocities = motion_on(Fused(solution, correction, fused, sequence), motion_model, config.motion.cov_scale)
-        solution, found = solve_export(export, fixes, config, initial_state, velocities)
+        solution, found = solve_export(export, fixes, config, initial_state, velocities, guess=solution.values)
     return Fused(solution, correction, fused, sequence, found, velocities)
 
 

@@ -49,8 +49,9 @@ class BodyVelocities:
         var = np.column_stack([np.interp(t, self.t, self.var[:, i]) for i in range(3)])
         return vel, var, inside
 
-    def scaled(self, factor: float) -> BodyVelocities:
-        """The same velocities with every variance times ``factor`` (> 0)."""
-        if not (np.isfinite(factor) and factor > 0):
-            raise InputError(f"BodyVelocities.scaled: factor must be a positive number, got {factor!r}")
+    def scaled(self, factor) -> BodyVelocities:
+        """The same velocities with every variance times ``factor`` (> 0): one number, or three (per body axis)."""
+        factor = np.asarray(factor, dtype=float)
+        if factor.shape not in ((), (3,)) or not np.all(np.isfinite(factor) & (factor > 0)):
+            raise InputError(f"BodyVelocities.scaled: factor must be one or three positive numbers, got {factor!r}")
         return BodyVelocities(self.t, self.vel, self.var * factor)

@@ -145,6 +145,7 @@ def build_graph(
     initial_state=None,
     bias: BiasStates | None = None,
     motion: BodyVelocities | None = None,
+    guess: gtsam.Values | None = None,
 ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
     """The pose graph of an export, GPS fixes and learned body-frame velocities, and its initial values (see the
     module docstring).
@@ -155,7 +156,9 @@ def build_graph(
     ``ALIGNED_PRIOR_SIGMAS``). ``gps``: None (or no fix) for none: dead reckoning, which needs a known first state.
     ``bias``: estimate a bias per keyframe interval (module docstring); the initial values are then found on the
     graph without bias states, every bias starting at zero. ``motion``: a ``factors.MotionFactor`` at every
-    keyframe inside its time span, the velocity and variance interpolated to the keyframe's time.
+    keyframe inside its time span, the velocity and variance interpolated to the keyframe's time. ``guess``: values
+    of this export's keyframes from an earlier solve (e.g. the pass before the motion factors changed), one more
+    candidate for the initial values (its poses and velocities).
     """
     settings = settings or FusionSettings()
     export = export if isinstance(export, Export) else load_export(export)
@@ -218,6 +221,8 @@ def build_graph(
         candidates.append(interpolated_values(export, times, gps, (pose0, vel0), settings))
     if moving:  # without GPS the IMU alone drifts far: the learned velocities integrated instead
         candidates.append(motion_values(export, times, motion, (pose0, vel0), settings))
+    if guess is not None:
+        candidates.append(_states_of(guess, len(times), settings))
     for values in candidates:
         check_values(graph, values)
     init_graph = graph
@@ -233,6 +238,20 @@ def build_graph(
         return graph, values
     others = [f for fixes in gps_factors.values() for f in fixes] + priors + moving
     return _with_bias_states(values, export, bias, settings.backend, others)
+
+
+def _states_of(values: gtsam.Values, keyframes: int, settings: FusionSettings) -> gtsam.Values:
+    """The keyframe poses and velocities of ``values`` (and B(0), zero if it has none, for the gtsam backend)."""
+    out = gtsam.Values()
+    for k in range(keyframes):
+        if not (values.exists(X(k)) and values.exists(V(k))):
+            raise GraphError(f"build_graph: the guess has no pose and velocity for keyframe {k} of {keyframes}")
+        out.insert(X(k), values.atPose3(X(k)))
+        out.insert(V(k), values.atVector(V(k)))
+    if settings.backend == "gtsam":
+        bias = values.atConstantBias(B(0)) if values.exists(B(0)) else gtsam.imuBias.ConstantBias()
+        out.insert(B(0), bias)
+    return out
 
 
 def combined_params(export: Export, bias: BiasStates) -> gtsam.PreintegrationCombinedParams:

@@ -120,6 +120,24 @@ def test_an_outage_ending_one_sample_after_a_keyframe_is_scored(drone, monkeypat
     assert np.linalg.norm(end_pos - seq.gt.pos[np.searchsorted(seq.t, end_t)]) < 1.0
 
 
+def test_an_earlier_solution_is_a_candidate_for_the_initial_values(drone):
+    seq, export = drone
+    idx = np.searchsorted(seq.t, export.keyframe_t)
+    truth = gtsam.Values()
+    for k, i in enumerate(idx):
+        truth.insert(gtsam.symbol("x", k), gtsam.Pose3(gtsam.Rot3(seq.gt.rot[i]), seq.gt.pos[i]))
+        truth.insert(gtsam.symbol("v", k), seq.gt.vel[i])
+    motion = body_velocities(seq)
+    graph, plain = build_graph(export, seq.gps[::10], motion=motion)
+    graph, guessed = build_graph(export, seq.gps[::10], motion=motion, guess=truth)
+    # the truth fits the graph far better than the guesses built from the IMU, the fixes or the velocities
+    assert graph.error(guessed) < 0.1 * graph.error(plain)
+    assert guessed.atPose3(gtsam.symbol("x", 7)).equals(truth.atPose3(gtsam.symbol("x", 7)), 1e-12)
+    truth.erase(gtsam.symbol("v", 3))
+    with pytest.raises(GraphError, match="keyframe 3"):
+        build_graph(export, seq.gps[::10], motion=motion, guess=truth)
+
+
 def test_fuse_without_gps_needs_a_start(drone):
     seq, _ = drone
     blind = dataclasses.replace(seq, gps=None)

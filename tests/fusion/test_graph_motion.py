@@ -80,6 +80,11 @@ def test_body_velocities_refuse_bad_values():
     half = BodyVelocities(t, np.arange(9.0).reshape(3, 3), var).at([0.5, 5.0])
     np.testing.assert_allclose(half[0][0], [1.5, 2.5, 3.5])
     assert half[2].tolist() == [True, False]
+    per_axis = BodyVelocities(t, vel, var).scaled([4.0, 1.0, 0.5])
+    np.testing.assert_array_equal(per_axis.var, np.tile([4.0, 1.0, 0.5], (3, 1)))
+    for bad in (0.0, [1.0, 2.0], [1.0, np.nan, 1.0]):
+        with pytest.raises(InputError, match="one or three positive"):
+            BodyVelocities(t, vel, var).scaled(bad)
 
 
 def test_fuse_bridges_a_gps_outage_with_motion_factors(drone, tmp_path, monkeypatch):

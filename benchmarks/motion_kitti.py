@@ -15,6 +15,12 @@ The IMU factors use the raw samples with the noise densities of GTSAM's ``IMUKit
 (1.75e-4 rad/s/sqrt(Hz), 0.01 m/s^2/sqrt(Hz)). Metric: ``learned_imu.evaluation.kitti_odometry`` (10 Hz,
 segments of 100..800 m, t_rel %, r_rel deg/m). AI-IMU's table (t_rel %) is printed beside.
 
+``--gtsam-drive``: GTSAM's example drive (seq 00 = 2011_10_03_drive_0027, fold 1's test drive) with GTSAM's own GPS
+file (``kitti_gtsam/KittiGps_converted.txt``, mapped into the OXTS frame), one fix in ten fused, as
+``IMUKittiExampleGPS.py`` runs it but in ``airimu fuse``'s batch graph (keyframes 1 s, raw IMU, the fuse config's
+default noise), without and with fold 1's motion factor: RMSE of the keyframes (interpolated) against every fix,
+ATE against the OXTS ground truth between the first and the last fused fix, unaligned.
+
 ``--outages``: GPS outages of 30 / 60 / 120 s at five places of each sequence (evenly spread over its middle), 1-Hz
 fixes from the ground truth with 0.3 m noise elsewhere; the mean position error at the end of the outage (the log
 solved up to then, ``airimu fuse --gps-outage``) for GTSAM's settings (raw IMU, its noise and bias states), the raw
@@ -114,6 +120,35 @@ def outage_rows(seq, net, motion_config: FuseConfig) -> list[dict]:
     return rows
 
 
+def gtsam_drive_rows(net, root: Path) -> list[dict]:
+    """The ``--gtsam-drive`` rows (module docstring)."""
+    from learned_imu.datasets import read_sequence
+
+    seq = read_sequence(
+        "kitti_raw", root / "kitti_raw/2011_10_03_drive_0027.csv", on_backward="drop", on_duplicate="drop",
+        on_gap="keep", gps_file=root / "kitti_gtsam/KittiGps_converted.txt",
+    )  # fmt: skip
+    gps = seq.gps
+    fused = gps[np.arange(len(gps.t)) % 10 == 0]
+    rows = []
+    for name, model in (("raw IMU", None), ("raw IMU + motion", net)):
+        result = fuse(seq, fused, None, FuseConfig(keyframe_s=1.0), motion_model=model)
+        keyframes = result.solution.trajectory
+        inside = (gps.t >= keyframes.t[0]) & (gps.t <= keyframes.t[-1])
+        at_fix = np.column_stack([np.interp(gps.t[inside], keyframes.t, keyframes.pos[:, i]) for i in range(3)])
+        dense = imu_rate_trajectory(result)
+        at = np.searchsorted(seq.t, dense.t)
+        keep = seq.gt.valid[at] & (dense.t >= fused.t[0]) & (dense.t <= fused.t[-1])
+        row = {
+            "row": name,
+            "rmse_to_gps_m": round(float(np.sqrt(np.mean(np.sum((at_fix - gps.pos[inside]) ** 2, 1)))), 3),
+            "ate_m": round(float(np.sqrt(np.mean(np.sum((dense.pos[keep] - seq.gt.pos[at[keep]]) ** 2, 1)))), 3),
+        }
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--fold", nargs=2, action="append", metavar=("N", "CHECKPOINT"), required=True)
@@ -122,6 +157,7 @@ def main() -> None:
     parser.add_argument("--passes", type=int, default=MotionSettings.passes, help="motion.passes")
     parser.add_argument("--cov-scale", type=float, default=MotionSettings.cov_scale, help="motion.cov_scale")
     parser.add_argument("--outages", action="store_true", help="also the GPS-outage rows")
+    parser.add_argument("--gtsam-drive", action="store_true", help="only GTSAM's drive, one fix in ten (fold 1)")
     parser.add_argument(
         "--validate", action="store_true", help="score the folds' validation drives (whole) instead: for settings"
     )
@@ -133,6 +169,11 @@ def main() -> None:
         gyro_noise_density=GTSAM_NOISE[0], acc_noise_density=GTSAM_NOISE[1], keyframe_s=1.0, motion=motion
     )
     rows, outages = [], []
+    if args.gtsam_drive:
+        checkpoint = dict(args.fold)["1"]
+        root = Path(load_config("configs/kitti_motion_fold1.yaml").data.root)
+        rows = gtsam_drive_rows(motion_from_checkpoint(checkpoint)[0], root)
+        args.fold = []
     for fold, checkpoint in args.fold:
         net, trained = motion_from_checkpoint(checkpoint)
         fold_config = load_config(f"configs/kitti_motion_fold{fold}.yaml")

@@ -169,6 +169,17 @@ def check(found: dict[str, Residual]) -> list[str]:
                 f"the {kind.upper()} factors' normalised residual (chi-square per degree of freedom) is {value:.3g}, "
                 f"{bound} (about 1 when the inputs fit their sigmas; {residual.factors} factors, {residual.dof:.3g} "
                 f"degrees of freedom): likely "
-                f"{CAUSES[kind][side]}"
+                f"{CAUSES[kind][side]}{_motion_note(found, kind, side)}"
             )
     return lines
+
+
+def _motion_note(found: dict[str, Residual], kind: str, side: str) -> str:
+    """With motion factors in the graph, a high GPS or IMU residual may be theirs to answer for."""
+    motion = found.get("motion")
+    if motion is None or side != "high" or kind not in ("gps", "imu"):
+        return ""
+    return (
+        f"; or the motion factors ({motion.factors}, normalised residual {motion.per_dof:.3g}) pulling the solution "
+        "away: learned velocities over-weighted (fusion.motion.cov_scale) or a local minimum"
+    )

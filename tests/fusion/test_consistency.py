@@ -133,3 +133,16 @@ def test_a_plausible_mistake_is_warned_about_naming_its_causes(drone, mistake, c
     stored = json.loads((tmp_path / "out" / "summary.json").read_text())["normalised_residuals"]
     assert stored["gps"]["chi2_per_dof"] == pytest.approx(result.residuals["gps"].per_dof)
     assert summary.normalised_residuals == stored
+
+
+def test_a_high_gps_residual_beside_motion_factors_names_them_too():
+    from fusion.consistency import Residual
+
+    found = {
+        "gps": Residual("gps", 47, 141, 45.8, 45.8 * 214.0),
+        "motion": Residual("motion", 2339, 7017, 5000.0, 4.45e4),
+    }
+    (line,) = check(found)
+    assert "GPS factors' normalised residual" in line and "the motion factors (2339, normalised residual 8.9)" in line
+    (plain,) = check({"gps": found["gps"]})
+    assert "motion" not in plain

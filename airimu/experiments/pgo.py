@@ -264,7 +264,9 @@ def run_sequence(
                 for _ in range(motion_settings.passes if setting.motion else 0):
                     fused = Fused(solution, correction, fuse, sequence)
                     velocities = motion_on(fused, motion, motion_settings.cov_scale)
-                    graph, values = build_graph(export, fuse, fusion, bias=setting.bias, motion=velocities)
+                    graph, values = build_graph(
+                        export, fuse, fusion, bias=setting.bias, motion=velocities, guess=solution.values
+                    )
                     solution = solve(graph, values, export.keyframe_t, fusion)
                 ates.append(ate_m(solution, truth, fuse if options.score_span == "gps" else None))
                 fits.append(consistency.residuals(solution.graph, solution.values))

@@ -4,8 +4,9 @@ fuse``.
 Stage by stage (independent of the PGO ablation's code; the recording and figure of ``airimu.viz.results``): the model
 corrects the IMU and predicts its noise (or, without a model, the raw samples with fixed noise densities); an export
 holds the keyframe preintegrations, a keyframe at the IMU sample of every fix (fixes inside a gap of the IMU are not
-used) or every ``keyframe_s``; ``fusion.solve`` builds the graph (GPS factors, robust ones with
-``graph.gps_robust``, optional bias states) and Levenberg-Marquardt solves it. The first state is found from the
+used), so that each fix constrains the state at its own time, and every ``keyframe_s`` between them;
+``fusion.solve`` builds the graph (GPS factors, robust ones with ``graph.gps_robust``, optional bias states) and
+Levenberg-Marquardt solves it. The first state is found from the
 GPS track (``fusion.initial.aligned_first_state``), never from ground truth: a sequence's ground truth, if it has
 one, only scores the result.
 
@@ -41,6 +42,7 @@ from learned_imu.export import (
     check_keyframe_interval,
     fixes_on_samples,
     keyframes_every,
+    merge_keyframes,
     nearest_samples,
     preintegration_export,
 )
@@ -205,9 +207,8 @@ def fuse(
             log.warning("%s: no GPS and no motion model: the result is integrated IMU, which drifts fast", where)
     else:
         sequence = dataclasses.replace(sequence, gps=fixes)
-        if config.keyframe_s is None:  # a keyframe at every fix: only fixes on an IMU sample
-            sequence = fixes_on_samples(sequence)
-            fixes = sequence.gps
+        sequence = fixes_on_samples(sequence)  # a keyframe at every fix: only fixes on an IMU sample
+        fixes = sequence.gps
         _check_coverage(sequence, fixes, where, need=1 if initial_state is not None else 2)
     if model is not None:
         correction = correct(model, sequence)
@@ -305,22 +306,23 @@ def _check_coverage(sequence: ImuSequence, fixes: GpsFixes, where, need: int) ->
 
 
 def _keyframes(sequence: ImuSequence, fixes, config: FuseConfig, motion: bool, from_start: bool) -> np.ndarray:
-    """Keyframe sample indices: one at every fix (or every ``keyframe_s``), plus every ``motion.keyframe_s`` with
-    a motion model, plus the first sample when the start state is given there."""
-    parts = []
+    """Keyframe sample indices: one at the sample of every fix (each fix constrains the state at its own time), plus
+    every ``keyframe_s`` and, with a motion model, every ``motion.keyframe_s`` between them (``merge_keyframes``),
+    plus the first sample when the start state is given there."""
+    grid = []
     if config.keyframe_s is not None:
         check_keyframe_interval(sequence, config.keyframe_s, f"{config.keyframe_s:g}s")
-        parts.append(keyframes_every(sequence, config.keyframe_s))
-    elif fixes is not None:
-        parts.append(nearest_samples(sequence, fixes.t)[0])
+        grid.append(keyframes_every(sequence, config.keyframe_s))
     if motion and config.motion.keyframe_s is not None:
         check_keyframe_interval(sequence, config.motion.keyframe_s, f"motion.keyframe_s {config.motion.keyframe_s:g}s")
-        parts.append(keyframes_every(sequence, config.motion.keyframe_s))
-    if not parts:
+        grid.append(keyframes_every(sequence, config.motion.keyframe_s))
+    if fixes is None and not grid:
         raise ConfigError("fuse: without GPS fixes set keyframe_s (--keyframes) or, with --motion, motion.keyframe_s")
+    required = [nearest_samples(sequence, fixes.t)[0]] if fixes is not None else []
     if from_start:
-        parts.append(np.zeros(1, dtype=int))
-    return np.unique(np.concatenate(parts))
+        required.append(np.zeros(1, dtype=int))
+    none = np.zeros(0, dtype=int)
+    return merge_keyframes(np.concatenate(required or [none]), np.concatenate(grid or [none]))
 
 
 def _check_noise(sequence: ImuSequence, noise_density: tuple[float, float]) -> None:

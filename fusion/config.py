@@ -176,7 +176,8 @@ class FuseConfig:
     - ``gyro_noise_density``, ``acc_noise_density``: sigma of the raw IMU's white noise, used without a model (a model
       predicts its own); default VINS-Mono's EuRoC setting, a consumer MEMS (rad/s/sqrt(Hz), m/s^2/sqrt(Hz)).
     - ``gps_sigma_m``: one-sigma GPS noise per axis (m) for fixes whose file gives none.
-    - ``keyframe_s``: a keyframe every this many seconds; null: one at every fused fix (batch only).
+    - ``keyframe_s``: a keyframe at every fused fix (each fix constrains the state at its own time), and one every
+      this many seconds between them; null: the fixes' alone (batch only).
     - ``estimate_bias``: a bias state per keyframe, with the sigmas and factor of ``bias``.
     - ``graph``: robust loss, lever arm, priors and the solver; ``online``: the smoother of ``OnlineFusion``;
       ``motion``: the learned motion factors, used when a motion model is given (``MotionSettings``).

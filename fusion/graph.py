@@ -1,7 +1,8 @@
 """IMU + GPS pose graph: keyframe states, learned preintegration factors, GPS factors, a prior; solved by LM.
 
 Pipeline (each step one call): load the export (``factors.load_export``) -> preintegration factors between
-consecutive keyframes -> GPS factors at the keyframes nearest to each fix -> a prior on the first state ->
+consecutive keyframes -> GPS factors at the keyframes nearest to each fix (warned about when a fix lies between
+keyframes: export with a keyframe at every fix) -> a prior on the first state ->
 initial values -> ``gtsam.LevenbergMarquardtOptimizer`` -> a typed ``Trajectory``.
 
 Keys: ``X(k)`` (``Pose3``, world <- IMU), ``V(k)`` (world-frame velocity, m/s) for keyframe k, as
@@ -176,6 +177,7 @@ def build_graph(
     init_loss = "huber" if settings.gps_robust else None
     gps = gps if gps is not None else GpsFixes.none()
     keyframe = _nearest_keyframes(times, gps.t) if len(gps.t) else np.zeros(0, dtype=int)
+    _warn_off_keyframe(export, gps, keyframe)
     gps_factors: dict[int, list] = {}
     init_gps: dict[int, list] = {}
     align_gps: dict[int, list] = {}  # Gaussian: the heading search compares far-off candidates, where a robust
@@ -368,6 +370,33 @@ def with_marginals(solution: Solution) -> Trajectory:
     trajectory = solution.trajectory
     nan = np.full((len(trajectory.t), 3, 3), np.nan)
     return Trajectory(trajectory.t, trajectory.rot, trajectory.pos, trajectory.vel, nan)
+
+
+def _warn_off_keyframe(export: Export, gps: GpsFixes, keyframe: np.ndarray) -> None:
+    """A warning when fixes lie more than 1.5 IMU samples from the keyframe they constrain: the graph applies each
+    fix at its keyframe's time, an error of the speed times the offset (``airimu fuse`` puts a keyframe at every fix:
+    ``learned_imu.export.merge_keyframes``)."""
+    used = keyframe >= 0
+    if used.sum() < 1 or len(export.keyframe_t) < 2:
+        return
+    sample_s = float(np.median(np.diff(export.keyframe_t) / np.diff(export.keyframe_index)))
+    offset = np.abs(export.keyframe_t[keyframe[used]] - gps.t[used])
+    if offset.max() <= 1.5 * sample_s:
+        return
+    speed = [0.0]
+    if len(gps.t) > 1:
+        speed = np.linalg.norm(np.diff(gps.pos, axis=0), axis=1) / np.maximum(np.diff(gps.t), 1e-9)
+    log.warning(
+        "%s: %d of %d GPS fixes lie between keyframes, up to %.3g s from the keyframe they are applied at (%.3g m at "
+        "the track's median speed %.3g m/s): export with a keyframe at every fix (learned_imu.export.merge_keyframes, "
+        "as airimu fuse does)",
+        export.name,
+        int((offset > 1.5 * sample_s).sum()),
+        int(used.sum()),
+        float(offset.max()),
+        float(offset.max() * np.median(speed)),
+        float(np.median(speed)),
+    )
 
 
 def _nearest_keyframes(times: np.ndarray, gps_t: np.ndarray) -> np.ndarray:

@@ -1,8 +1,9 @@
 """Online IMU + GPS fusion: samples and fixes go in as they arrive; the learned pose graph is solved incrementally.
 
 Per block of IMU samples (``OnlineFusion.add_imu``), as ``fusion.graph.build_graph`` but one keyframe at a time:
-buffer the samples; decide keyframes (the first sample, then the first at least ``keyframe_s`` after the previous,
-with half a sample period of tolerance: ``export.keyframes_every`` for uniform rates); once an interval is complete,
+buffer the samples; decide keyframes (the first sample, then the first at least ``keyframe_s`` after the grid's
+previous one, with half a sample period of tolerance: ``export.keyframes_every`` for uniform rates; and one at the
+sample of each fix, ``export.merge_keyframes``); once an interval is complete,
 correct it with the model in streaming mode (``AirImuNet.stream``, carried GRU state: what a one-pass
 ``correct_sequence`` gives) or take the raw samples with fixed noise; preintegrate it with GTSAM's own
 preintegration and the per-sample learned noise (``factors.learned_pim``: the export's ``learned_imu.preintegrate``
@@ -10,7 +11,9 @@ route pays torch's call overhead per interval, this one a fraction of it; the tw
 discretisation, well inside the 1 cm online-vs-batch check); wrap it in GTSAM's C++ ``ImuFactor``, predict
 the new keyframe through it, and add it with its GPS factors to ``gtsam.ISAM2`` (or an
 ``IncrementalFixedLagSmoother``). GPS fixes attach to the nearest keyframe (the earlier on a tie) without
-interpolation, as in ``fusion.graph``: choose ``keyframe_s`` so that keyframes fall on the fixes.
+interpolation; each fix gets a keyframe of its own at its nearest sample (so that it constrains the state at its
+own time) when it is added before a keyframe past its time entered the graph: add each fix before the IMU samples
+after it (``keyframe_s`` then adds keyframes between the fixes).
 
 Keys: ``X(k)`` (``Pose3`` world <- IMU), ``V(k)`` (world velocity, m/s), ``B(k)``. Only C++ factors enter the
 smoother (a Python ``CustomFactor`` gets a copy of all values per call), except, with a motion model, one
@@ -174,6 +177,8 @@ class OnlineFusion:
         self._rate_checked = False
         self._noise_sample = (np.zeros(0), np.zeros((0, 6))) if model is None and given else None  # _check_noise
         self.unused_fixes: tuple[float, ...] = ()  # times of the fixes flush() could not use
+        self._grid_t = 0.0  # the time of the keyframe grid's latest point (fixes' keyframes do not move it)
+        self._late_warned = False  # a fix applied away from its own time (it came after its sample left the buffer)
 
     @property
     def keyframes(self) -> int:
@@ -194,9 +199,19 @@ class OnlineFusion:
         for i, ti in enumerate(t):
             if not self._kf_t:
                 self._decide_keyframe(ti, first + i)
+                self._grid_t = float(ti)
                 self._start()
-            elif ti - self._kf_t[-1] >= self._keyframe_s - 0.5 * (ti - self._t[first + i - 1 - self._base]):
-                self._decide_keyframe(ti, first + i)
+                continue
+            half = 0.5 * (ti - self._t[first + i - 1 - self._base])
+            while self._waiting and self._waiting[0][0] <= ti + half:  # a fix whose nearest sample this is
+                fix = self._waiting.pop(0)
+                if first + i - self._kf_index[-1] >= 2:  # its own keyframe (an interval needs two samples)
+                    self._decide_keyframe(ti, first + i)
+                self._attach(self._nearest_keyframe(fix[0]), fix)
+            if ti - self._grid_t >= self._keyframe_s - half:  # the grid between the fixes' keyframes
+                self._grid_t = float(ti)
+                if first + i - self._kf_index[-1] >= 2:
+                    self._decide_keyframe(ti, first + i)
         if self._motion is not None:
             self._motion_raw = np.concatenate([self._motion_raw, raw])
         if self._model is None:
@@ -222,12 +237,10 @@ class OnlineFusion:
             first = f"{self._kf_t[0]} s" if self._kf_t else "none yet"
             raise InputError(f"add_gps: fix at t={t} s precedes the first IMU sample ({first})")
         fix = (t, pos, gps_noise(sigma, self._gps_robust))
-        if t > self._kf_t[-1]:
-            self._waiting.append(fix)
+        if len(self._t) < 2 or t > self._t[-1] + 0.5 * (self._t[-1] - self._t[-2]):  # its sample is still to come
+            bisect.insort(self._waiting, fix, key=lambda f: f[0])
             return False
-        i = bisect.bisect_left(self._kf_t, t)  # kf_t[i - 1] < t <= kf_t[i]
-        k = i if self._kf_t[i] == t or t - self._kf_t[i - 1] > self._kf_t[i] - t else i - 1
-        return self._attach(k, fix)
+        return self._attach(self._keyframe_for_fix(t), fix)
 
     def flush(self) -> int:
         """End of the stream: the model's last partial block is padded with the last sample (as
@@ -294,6 +307,47 @@ class OnlineFusion:
             values.insert(B(0), zero)
         self._in_graph = 1
         self._update(graph, values)
+
+    def _nearest_keyframe(self, t: float) -> int:
+        """The decided keyframe nearest to time ``t`` (the earlier on a tie)."""
+        i = min(bisect.bisect_left(self._kf_t, t), len(self._kf_t) - 1)  # kf_t[i - 1] < t <= kf_t[i]
+        return i if i == 0 or self._kf_t[i] == t or t - self._kf_t[i - 1] > self._kf_t[i] - t else i - 1
+
+    def _keyframe_for_fix(self, t: float) -> int:
+        """The keyframe of a fix at ``t`` whose sample is buffered: a new one at its nearest sample when that lies
+        after the last keyframe in the graph and two samples or more from the decided ones (each fix constrains the
+        state at its own time), else the nearest decided keyframe. A fix that arrives after a keyframe past its time
+        entered the graph is applied at the nearest keyframe, and said so once."""
+        if t < self._t[0]:
+            return self._late(t)
+        local = int(np.clip(np.searchsorted(self._t, t), 1, len(self._t) - 1))
+        local -= int(abs(self._t[local - 1] - t) <= abs(self._t[local] - t))
+        j = self._base + local  # the fix's nearest sample (the buffer starts at the last keyframe in the graph)
+        p = bisect.bisect_left(self._kf_index, j)
+        if p < len(self._kf_index) and self._kf_index[p] == j:
+            return p
+        if j - self._kf_index[p - 1] < 2 or (p < len(self._kf_index) and self._kf_index[p] - j < 2):
+            return self._late(t)
+        self._kf_t.insert(p, float(self._t[local]))
+        self._kf_index.insert(p, j)
+        self._gps_for = {(k + 1 if k >= p else k): fixes for k, fixes in self._gps_for.items()}
+        return p
+
+    def _late(self, t: float) -> int:
+        """The nearest decided keyframe for a fix at ``t`` that cannot have its own; a warning (once) when it lies
+        more than 1.5 samples away."""
+        k = self._nearest_keyframe(t)
+        spacing = float(np.median(np.diff(self._t))) if len(self._t) > 1 else 0.0
+        if abs(self._kf_t[k] - t) > 1.5 * spacing and not self._late_warned:
+            self._late_warned = True
+            log.warning(
+                "OnlineFusion.add_gps: the fix at t=%.3f s arrived after the keyframe at %.3f s entered the graph and "
+                "is applied there, %.3g s from its own time: add each fix before the IMU samples after it",
+                t,
+                self._kf_t[k],
+                abs(self._kf_t[k] - t),
+            )
+        return k
 
     def _decide_keyframe(self, t: float, index: int) -> None:
         """A new keyframe at sample ``index``; waiting fixes up to ``t`` go to the nearer of it and the previous."""

@@ -35,6 +35,25 @@ def keyframes_every(sequence: ImuSequence, interval_s: float) -> np.ndarray:
     return np.arange(0, len(sequence), step)
 
 
+def merge_keyframes(required: np.ndarray, extra: np.ndarray) -> np.ndarray:
+    """Keyframe sample indices: every one of ``required`` (e.g. the samples of the GPS fixes, so that each fix
+    constrains the state at its own time) and those of ``extra`` (e.g. a regular grid) that lie at least two samples
+    from every required one (an interval needs two samples). Required indices closer than two samples to the
+    previous kept one are left out too: the fix there attaches to a keyframe one sample away."""
+    kept: list[int] = []
+    for i in np.unique(np.asarray(required, dtype=np.int64)):
+        if not kept or i - kept[-1] >= 2:
+            kept.append(int(i))
+    fixed = np.asarray(kept, dtype=np.int64)
+    extra = np.unique(np.asarray(extra, dtype=np.int64))
+    if len(fixed) and len(extra):
+        at = np.searchsorted(fixed, extra)  # fixed[at - 1] < extra <= fixed[at]
+        after = np.abs(fixed[np.minimum(at, len(fixed) - 1)] - extra)
+        before = np.abs(extra - fixed[np.maximum(at - 1, 0)])
+        extra = extra[np.minimum(before, after) >= 2]
+    return np.union1d(fixed, extra)
+
+
 def export_preintegration(
     path: str | Path,
     sequence: ImuSequence,

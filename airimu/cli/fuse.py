@@ -135,7 +135,9 @@ def fuse(
         None, "--bias/--no-bias", help="estimate a bias state per keyframe (config: estimate_bias)"
     ),
     keyframes: str = typer.Option(
-        None, help="'fixes' (a keyframe at every fused fix) or an interval like '1s'; default: config keyframe_s"
+        None,
+        help="a keyframe at every fused fix always; an interval like '1s' adds keyframes between them "
+        "('fixes': none); default: config keyframe_s",
     ),
     gyro_noise_density: float = typer.Option(
         None, help="gyro sigma, rad/s/sqrt(Hz), without --checkpoint only; default: config gyro_noise_density"

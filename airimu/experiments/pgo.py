@@ -43,7 +43,13 @@ from fusion import consistency
 from fusion.config import BiasStates, FusionSettings, MotionSettings
 from fusion.graph import Solution, build_graph, solve
 from learned_imu.config import load_config
-from learned_imu.export import fixes_on_samples, keyframes_every, nearest_samples, preintegration_export  # noqa: F401
+from learned_imu.export import (  # noqa: F401
+    fixes_on_samples,
+    keyframes_every,
+    merge_keyframes,
+    nearest_samples,
+    preintegration_export,
+)
 from learned_imu.network.checkpoint import model_from_checkpoint, motion_from_checkpoint
 from learned_imu.network.inference import correct
 from learned_imu.network.model import Correction
@@ -133,8 +139,8 @@ def write_exports(
         if sequence.gps is None:
             raise ConfigError(f"options.keyframes: 'fixes' needs recorded GPS fixes; {sequence.name} has none")
         index = np.unique(nearest_samples(sequence, sequence.gps.t)[0])
-    else:
-        index = keyframes_every(sequence, options.keyframe_interval_s)
+    else:  # the grid, and a keyframe at the sample of every fix any rate fuses (each at its own time)
+        index = merge_keyframes(_fix_samples(sequence, options), keyframes_every(sequence, options.keyframe_interval_s))
     out, by_key = {}, {}
     for setting in settings:
         if setting.file_key in by_key:  # a motion row shares its export with the row it extends
@@ -177,9 +183,7 @@ def gps_for(
     if source == "simulated" and sequence.gt is None:
         raise InputError(f"{sequence.name}: simulated GPS needs ground truth")
     if source != "recorded" and sequence.gt is not None:
-        step = max(1, int(round(1.0 / (rate_hz * float(np.median(sequence.dt))))))
-        index = np.arange(0, len(sequence), step)
-        index = index[sequence.gt.valid[index]]
+        index = _simulated_index(sequence, rate_hz)
         rng = np.random.default_rng([seed, int(rate_hz * 1000)])
         noisy = sequence.gt.pos[index] + rng.normal(0.0, sigma_m, (len(index), 3))
         fuse = GpsFixes(sequence.t[index], noisy, np.full((len(index), 3), sigma_m))
@@ -198,6 +202,29 @@ def gps_for(
         valid = sequence.gt.valid
         truth = GpsFixes(sequence.t[valid], sequence.gt.pos[valid], np.zeros((int(valid.sum()), 3)))
     return fixes[keep], truth
+
+
+def _simulated_index(sequence: ImuSequence, rate_hz: float) -> np.ndarray:
+    """The samples simulated fixes at ``rate_hz`` lie on: every (1 / rate)-th from the first, where ground truth is
+    valid."""
+    step = max(1, int(round(1.0 / (rate_hz * float(np.median(sequence.dt))))))
+    index = np.arange(0, len(sequence), step)
+    return index[sequence.gt.valid[index]]
+
+
+def _recorded(sequence: ImuSequence, options: PgoOptions) -> bool:
+    """Whether the fused fixes are the sequence's recorded ones (``options.gps_source``)."""
+    return options.gps_source == "recorded" or (options.gps_source == "auto" and sequence.gt is None)
+
+
+def _fix_samples(sequence: ImuSequence, options: PgoOptions) -> np.ndarray:
+    """The samples of every fix that some GPS rate of ``options`` fuses (``gps_for``'s sources)."""
+    if _recorded(sequence, options):
+        if sequence.gps is None:
+            return np.zeros(0, dtype=int)
+        index, on_sample = nearest_samples(sequence, sequence.gps.t)
+        return index[on_sample]
+    return np.unique(np.concatenate([_simulated_index(sequence, hz) for hz in options.gps_hz]))
 
 
 def recorded_phases(sequence: ImuSequence, rate_hz: float) -> int:
@@ -245,7 +272,7 @@ def run_sequence(
     if options.keyframes == "fixes":
         sequence = fixes_on_samples(sequence)
     exports = write_exports(sequence, correction, folder, options, settings)
-    recorded = options.gps_source == "recorded" or (options.gps_source == "auto" and sequence.gt is None)
+    recorded = _recorded(sequence, options)
     rows, examples = [], {}
     for setting in settings:
         export = exports[setting.name]

@@ -60,7 +60,7 @@ def test_config_file_and_flag_overrides(tmp_path):
     seq = simulate("car", duration_s=30.0, grade="industrial", seed=2)
     bag, _ = write_bag_with_navsatfix(tmp_path / "drive", seq, fixes_every=200, sigma=0.5)
     config = tmp_path / "mine.yaml"
-    config.write_text("gyro_noise_density: 0.0003\nacc_noise_density: 0.003\nkeyframe_s: 2.0\n")
+    config.write_text("gyro_noise_density: 0.0003\nacc_noise_density: 0.003\nkeyframe_s: 0.5\n")
     base = [
         "fuse",
         "--dataset",
@@ -73,8 +73,8 @@ def test_config_file_and_flag_overrides(tmp_path):
         str(config),
     ]
     runs = {
-        "file": [],  # keyframes every 2 s from the file
-        "flag": ["--keyframes", "fixes"],  # the flag wins: a keyframe at every 1 Hz fix
+        "file": [],  # keyframes at the fixes and every 0.5 s from the file
+        "flag": ["--keyframes", "fixes"],  # the flag wins: a keyframe at every 1 Hz fix alone
         "sigma": ["--keyframes", "fixes", "--gps-sigma", "5.0"],  # the log's own fixes, their sigma replaced
     }
     marginals = {}
@@ -84,7 +84,7 @@ def test_config_file_and_flag_overrides(tmp_path):
         summary = json.loads((tmp_path / name / "summary.json").read_text())
         marginals[name] = np.load(tmp_path / name / "marginals.npz", allow_pickle=False)["pos_cov"]
         assert summary["fused_fixes"] == 30
-    assert len(marginals["file"]) == 15 and len(marginals["flag"]) == 30
+    assert len(marginals["file"]) == 60 and len(marginals["flag"]) == 30
     # 10x the sigma of the bag's 0.5-m fixes: the fused positions are far less certain (a quietly ignored
     # --gps-sigma would leave them equal)
     spread = {name: np.median(np.trace(cov, axis1=1, axis2=2)) for name, cov in marginals.items()}

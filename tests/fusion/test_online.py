@@ -21,7 +21,7 @@ from fusion.config import FuseConfig, OnlineSettings
 from fusion.graph import Solution, build_graph, solve
 from fusion.online import OnlineFusion
 from learned_imu.datasets.simulator import simulate
-from learned_imu.export import export_preintegration, keyframes_every
+from learned_imu.export import export_preintegration, keyframes_every, merge_keyframes, nearest_samples
 from learned_imu.network.checkpoint import TrainedOn
 from learned_imu.network.model import AirImuNet, correct_sequence
 from tests.helpers import REPO
@@ -81,7 +81,8 @@ def batch_solution(seq, model, gps: GpsFixes, tmp_path) -> tuple[Solution, float
         noise = (out.gyro_cov.double().numpy(), out.acc_cov.double().numpy())
         samples = (out.gyro.double().numpy(), out.acc.double().numpy())
         largest = float(out.d_gyro.abs().max())
-    path = export_preintegration(tmp_path / "e.npz", seq, keyframes_every(seq, KEYFRAME_S), *noise, *samples)
+    index = merge_keyframes(nearest_samples(seq, gps.t)[0], keyframes_every(seq, KEYFRAME_S))  # as airimu fuse
+    path = export_preintegration(tmp_path / "e.npz", seq, index, *noise, *samples)
     export = load_export(path)
     graph, values = build_graph(export, gps, initial_state=first_state(seq))
     return solve(graph, values, export.keyframe_t), largest
@@ -109,7 +110,7 @@ def run_online(seq, fusion: OnlineFusion, gps: GpsFixes, check_states: bool = Tr
 def test_online_ends_on_the_batch_solution(sequence, with_model, tmp_path):
     seq = sequence
     gps, truth = gps_for(seq, 1.0, 0.1, seed=0)
-    if not with_model:  # fixes 0.3 s after whole seconds: each waits for the next keyframe, its nearest
+    if not with_model:  # fixes 0.3 s after whole seconds: each gets its own keyframe between the grid's
         index = np.arange(60, len(seq), 200)
         noise = np.random.default_rng(0).normal(0.0, 0.1, (len(index), 3))
         gps = GpsFixes(seq.t[index], seq.gt.pos[index] + noise, np.full((len(index), 3), 0.1))
@@ -122,7 +123,7 @@ def test_online_ends_on_the_batch_solution(sequence, with_model, tmp_path):
     state = fusion.current_state()
 
     keyframes = len(batch.trajectory.t)
-    assert keyframes == 120
+    assert keyframes == (120 if with_model else 180)  # the 0.5-s grid, and with the raw samples a keyframe per fix
     # the model holds back the last, incomplete block: the last keyframe needs flush
     assert (before_flush, added) == ((keyframes - 1, 1) if with_model else (keyframes, 0))
     np.testing.assert_array_equal(online.t, batch.trajectory.t)
@@ -262,3 +263,18 @@ def test_isam2_example_runs_and_fuses():
     values = dict(line.split(": ", 1) for line in run.stdout.splitlines() if ": " in line)
     gps_error, fused = (float(values[key].split()[0]) for key in ("GPS alone error", "fused ATE"))
     assert fused < 0.6 * gps_error  # measured 0.351 m vs 0.852 m
+
+
+def test_a_fix_gets_its_own_keyframe_unless_it_comes_after_one_past_it(sequence, caplog):
+    """A fix added while its sample is buffered gets a keyframe there (between the 0.5-s grid's); one added after a
+    keyframe past its time entered the graph is applied at the nearest keyframe, with a warning naming the offset."""
+    seq = sequence
+    fusion = OnlineFusion(None, seq.gravity, first_state(seq), config())
+    fusion.add_imu(seq.t[:150], seq.gyro[:150], seq.acc[:150])  # keyframes at 0 and 0.5 s in the graph
+    assert fusion.add_gps(seq.t[130], seq.gt.pos[130], 0.1) is False  # buffered: a keyframe of its own, waiting
+    fusion.add_imu(seq.t[150:300], seq.gyro[150:300], seq.acc[150:300])
+    assert list(fusion.trajectory().t) == [seq.t[0], seq.t[100], seq.t[130], seq.t[200]]
+    with caplog.at_level("WARNING"):
+        assert fusion.add_gps(seq.t[160], seq.gt.pos[160], 0.1) is True  # after the keyframe at 200 (1.0 s)
+    assert list(fusion.trajectory().t) == [seq.t[0], seq.t[100], seq.t[130], seq.t[200]]
+    assert "applied there, 0.15 s from its own time" in caplog.text

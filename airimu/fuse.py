@@ -13,8 +13,9 @@ one, only scores the result.
 GPS files are read by ``learned_imu.datasets.gps.read_gps_csv``.
 
 Not fused wrong in silence: given noise densities that the samples themselves contradict (``factors.noise``: a
-warning naming both numbers when a sigma lies 3x under or 10x over the samples' own white noise: a variance given
-for a sigma, another unit); refused: a GPS track that fits the
+warning naming both numbers when a sigma lies 100x under or 10x over the samples' own white noise: a variance given
+for a sigma, another unit; after the solve, an IMU misfit with densities the user gave names them beside the
+samples' own noise); refused: a GPS track that fits the
 IMU far better read in another unit (``check_gps_units``, ``fusion.gps_units``: lat/lon in radians read as degrees,
 x/y/z in km or mm; ``airimu fuse`` runs it on every GPS file).
 Scoring (``write_outputs``): the fused track lives in the GPS frame, the ground truth in its own, so the ATE is
@@ -49,6 +50,7 @@ from learned_imu.export import (
 from learned_imu.network.model import Correction
 
 UNCOVERED_WARNING_S = 30.0  # IMU time before the first or after the last fix that is worth a warning
+MODEL_REFUSAL_RATIO = 3.0  # a model leaving this many times more GPS motion unexplained than the raw IMU is refused
 UNIT_REFUSAL_RATIO = 3.0  # refused when another reading of the file leaves this many times less motion unexplained
 log = logging.getLogger(__name__)
 
@@ -99,6 +101,7 @@ class FuseRequest:
     start: object = None  # fuse's start: None, "ground-truth" or a gtsam.NavState at the first sample
     no_gps: bool = False  # fuse no fix (dead reckoning from start)
     outages: tuple[tuple[float, float], ...] = ()  # (start, duration) s from the first sample
+    trust_model: bool = False  # fuse with the model even where its samples fit the GPS far worse than the raw ones
 
 
 @dataclass(frozen=True, eq=False)
@@ -141,6 +144,8 @@ def run_fuse(request: FuseRequest) -> FuseDone:
         motion = motion_from_checkpoint(request.motion_checkpoint)[0]
     fused = None if fixes is None else fixes[:: request.gps_every]
     with folder_lock(request.out):  # one writer per folder from here on
+        if model is not None and fused is not None and not request.trust_model:
+            check_model_against_raw(sequence, model, fused, request.checkpoint)
         result = fuse(sequence, fused, model, config, motion, request.start, request.outages)
         summary, written = write_outputs(result, request.out, reference=fixes)
     return FuseDone(summary, written, len(result.gps.t))
@@ -222,6 +227,8 @@ def fuse(
         gyro_cov, acc_cov = (torch.full_like(gyro, s**2) for s in config.noise_density)
         correction = Correction(gyro, acc, zero, zero, gyro_cov, acc_cov)
     result = _solve(sequence, fixes, correction, config, motion_model, initial_state)
+    if model is None and not config.noise_is_default:
+        _blame_given_noise(sequence, config.noise_density, result.residuals)
     ends = []
     for begin, duration in outages:  # what a causal estimator believes when the outage ends: the log up to then
         end = min(float(sequence.t[0]) + begin + duration, float(sequence.t[-1]))
@@ -325,6 +332,33 @@ def _keyframes(sequence: ImuSequence, fixes, config: FuseConfig, motion: bool, f
     return merge_keyframes(np.concatenate(required or [none]), np.concatenate(grid or [none]))
 
 
+def _blame_given_noise(sequence: ImuSequence, noise_density: tuple[float, float], residuals: dict) -> None:
+    """After the solve: when the IMU factors' chi-square per degree of freedom is above ``consistency.HIGH`` with
+    noise densities the user gave, a warning naming them beside the samples' own white noise (a sigma below it makes
+    the graph trust the IMU more than its samples allow: a variance given as a sigma, a datasheet value on a
+    vibrating platform, or a bias the graph does not model)."""
+    from factors.noise import white_noise_density
+    from fusion.consistency import HIGH
+
+    imu = residuals.get("imu")
+    if imu is None or not imu.per_dof > HIGH:
+        return
+    measured = [white_noise_density(x, sequence.dt) for x in (sequence.gyro, sequence.acc)]
+    pairs = ", ".join(
+        f"{name} {given:.3g} (the samples' own white noise {'?' if m is None else f'{m:.2g}'})"
+        for name, given, m in zip(("gyro_noise_density", "acc_noise_density"), noise_density, measured, strict=True)
+    )
+    log.warning(
+        "%s: the IMU factors do not fit their sigmas (chi-square per degree of freedom %.3g) with the densities given: "
+        "%s (--gyro-noise-density, --acc-noise-density). Below the samples' own noise, the graph trusts the IMU "
+        "more than it can: a variance given as a sigma, or a datasheet value on a vibrating platform? Without bias "
+        "states, larger densities also absorb the bias.",
+        sequence.source or sequence.name,
+        imu.per_dof,
+        pairs,
+    )
+
+
 def _check_noise(sequence: ImuSequence, noise_density: tuple[float, float]) -> None:
     """Warn, naming both numbers, about given densities that the samples contradict (``factors.noise``)."""
     for sensor, given, samples in zip(("gyro", "acc"), noise_density, (sequence.gyro, sequence.acc), strict=True):
@@ -374,6 +408,30 @@ def check_gps_units(
                 f"unexplained) than with {unit} ({other:.3g} m/s): {unit}? The {columns} columns are read as "
                 + ("degrees" if columns == "lat/lon" else "m"),
             )
+
+
+def check_model_against_raw(sequence: ImuSequence, model, fixes: GpsFixes, checkpoint) -> None:
+    """Refuse a model whose corrected samples leave ``MODEL_REFUSAL_RATIO`` times more of the GPS track's motion
+    unexplained than the raw samples do (``fusion.gps_units.track_misfit``, m/s): a model of another IMU, a broken
+    checkpoint, or one trained on data whose frames or units differ; ``airimu fuse --trust-model`` fuses it anyway.
+    A model that corrects anything fits at least as well as the raw samples."""
+    from fusion.gps_units import track_misfit
+    from learned_imu.network.inference import correct
+
+    raw = track_misfit(sequence, fixes)
+    if raw is None:
+        return
+    out = correct(model, sequence)
+    corrected = dataclasses.replace(sequence, gyro=out.gyro.double().numpy(), acc=out.acc.double().numpy())
+    with_model = track_misfit(corrected, fixes)
+    if with_model is not None and with_model > MODEL_REFUSAL_RATIO * raw:
+        raise DataError(
+            checkpoint,
+            "model",
+            f"its corrected samples explain the GPS track of {sequence.source or sequence.name} far worse than the "
+            f"raw samples do ({with_model:.3g} m/s of its velocity changes unexplained against {raw:.3g}): a model "
+            "of another IMU, platform or unit? Fuse without --checkpoint, or pass --trust-model to use it anyway",
+        )
 
 
 def check_gps_clock(sequence: ImuSequence, source: object, fixes: GpsFixes) -> float | None:

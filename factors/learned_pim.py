@@ -21,6 +21,7 @@ preintegration at the solver's current bias, as ``IMUKittiExampleGPS.py`` does; 
 from __future__ import annotations
 
 import logging
+import sys
 
 import gtsam
 import numpy as np
@@ -36,6 +37,7 @@ MIN_SAMPLES_FOR_GRAVITY_CHECK = 10
 MAX_COV = {"gyro_cov": 1.0, "acc_cov": 100.0}
 # a median sample period above this is no IMU's (seconds given in another unit, or a total duration as dt)
 MAX_MEDIAN_DT_S = 1.0
+GRAVITY_RANGE = (9.7, 9.9)  # m/s^2: Earth's gravity from the equator to the poles, sea level to 10 km
 log = logging.getLogger(__name__)
 
 
@@ -118,6 +120,13 @@ def _params(kind, given, gravity_m_s2, integration_cov):
         params = kind.MakeSharedU(float(gravity_m_s2))
     else:
         params = kind(np.asarray(gravity_m_s2, dtype=float).reshape(3))
+    gravity = float(np.linalg.norm(params.n_gravity))
+    if not GRAVITY_RANGE[0] <= gravity <= GRAVITY_RANGE[1]:
+        where = "params.n_gravity" if given is not None else "gravity_m_s2"
+        raise ValueError(
+            f"learned_pim: {where} has magnitude {gravity:.4g} m/s^2, not Earth's gravity ({GRAVITY_RANGE[0]:g}-"
+            f"{GRAVITY_RANGE[1]:g}): give it in m/s^2 (9.81, not 1 g), as the magnitude or the world-frame vector"
+        )
     if integration_cov is not None:
         if not (np.isfinite(integration_cov) and integration_cov >= 0):
             raise ValueError(f"learned_pim: integration_cov must be finite and >= 0, got {integration_cov!r}")
@@ -152,9 +161,29 @@ def _checked(gyro, acc, dt, gyro_cov, acc_cov):
         if np.ndim(given) <= 1:  # a constant someone typed (a model's per-sample noise rightly differs from it)
             sigma = float(np.sqrt(cov.max()))
             message = noise_mismatch(sensor, sigma, samples, dt)
-            if message:
-                log.warning("learned_pim: %s_cov %.3g (sigma %.3g): %s", sensor, sigma**2, sigma, message)
+            site = _call_site()
+            if message and (site, sensor) not in _WARNED:  # once per calling line, not once per interval
+                _WARNED.add((site, sensor))
+                log.warning(
+                    "learned_pim (called from %s:%d): %s_cov %.3g (sigma %.3g): %s",
+                    *site,
+                    sensor,
+                    sigma**2,
+                    sigma,
+                    message,
+                )
     return gyro, acc, dt, *covs
+
+
+_WARNED: set = set()  # (call site, sensor) pairs warned about
+
+
+def _call_site() -> tuple[str, int]:
+    """(file, line) of the first caller outside this module."""
+    frame = sys._getframe(1)
+    while frame is not None and frame.f_code.co_filename == __file__:
+        frame = frame.f_back
+    return ("?", 0) if frame is None else (frame.f_code.co_filename, frame.f_lineno)
 
 
 def _samples(name: str, value) -> np.ndarray:

@@ -105,7 +105,7 @@ class OnlineFusion:
             ``configs/fuse.yaml``): ``online`` (keyframe interval, smoother, lag, ISAM2's relinearisation threshold,
             the bias re-linearisation tolerance), the noise densities without a model (densities other than the
             defaults are compared with the stream's own white noise once ``NOISE_CHECK_SAMPLES`` samples are in, and
-            warned about 3x under or 10x over it), ``graph`` (the prior on the first state, the GPS robust loss and
+            warned about 100x under or 10x over it), ``graph`` (the prior on the first state, the GPS robust loss and
             lever arm), and the bias states (``estimate_bias``; ``bias.factor`` must be ``"between"``), ``motion``
             (``cov_scale``).
         motion_model: a ``MotionNet`` in eval mode, or None: a learned body-frame velocity factor

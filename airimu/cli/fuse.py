@@ -161,6 +161,11 @@ def fuse(
         "default: aligned to the GPS track. Needed with --no-gps",
     ),
     no_gps: bool = typer.Option(False, "--no-gps", help="fuse no GPS fix: dead reckoning from --start"),
+    trust_model: bool = typer.Option(
+        False,
+        "--trust-model",
+        help="fuse with --checkpoint even where its corrected samples fit the GPS track 3x worse than the raw ones",
+    ),
     gps_outage: list[str] = typer.Option(  # noqa: B008 (typer reads repeats as a list)
         None,
         help="START:DURATION, s from the log's first sample: the fixes inside are not fused (they still score the "
@@ -175,7 +180,7 @@ def fuse(
     world <- IMU), fused_imu_rate.tum (every IMU sample: each keyframe's state carried forward by the IMU to the next
     one; compare this one with evo against a ground truth), marginals.npz (keyframe positions and their 3x3
     covariances), fused.rrd (Rerun), fused.png and summary.json (RMSE against the fixes; with ground truth, the ATE
-    after an SE(3) alignment and without one). Given noise densities 3x under or 10x over the samples' own white
+    after an SE(3) alignment and without one). Given noise densities 100x under or 10x over the samples' own white
     noise are warned about, naming both; GPS files that fit the IMU far better in another unit (lat/lon in radians,
     x/y/z in km or mm) or with two columns swapped are refused; a GPS clock offset is warned about with its
     estimate."""
@@ -223,6 +228,7 @@ def fuse(
         start=start_state,
         no_gps=no_gps,
         outages=outages,
+        trust_model=trust_model,
     )
     done = run_fuse(request)
     summary = done.summary

@@ -246,6 +246,11 @@ def export(
     """Export corrected samples, their learned noise and preintegrated keyframe deltas + covariances for GTSAM."""
     from learned_imu.export import export_preintegration, keyframes_from_spec
 
+    if checkpoint and (gyro_noise_density is not None or acc_noise_density is not None):
+        raise typer.BadParameter(
+            "--gyro-noise-density / --acc-noise-density apply without --checkpoint only (the model predicts the "
+            "IMU's noise); drop them, or --checkpoint to export the raw IMU with them"
+        )
     _check_outputs(files={"--out": out})
     sequence = _read_with_options(dataset, path, reader_option or [], imu_file)
     index = keyframes_from_spec(sequence, keyframes)

@@ -76,3 +76,21 @@ def test_ragged_complex_or_text_inputs_are_refused_by_name_not_by_numpy():
     for build, message in cases:
         with pytest.raises(ValueError, match=message):  # learned_pim's refusals are ValueErrors, GpsFixes' InputErrors
             build()
+
+
+def test_a_warning_comes_once_per_calling_line_not_per_interval(kitti, caplog):
+    """A loop over 232 intervals printed 232 warnings; now one per line that calls learned_pim."""
+    gyro, acc, _ = kitti
+    with caplog.at_level(logging.WARNING, logger="factors.learned_pim"):
+        for _ in range(5):
+            learned_pim(gyro, acc, 0.01, 3e-8**2, 0.01**2, 9.8)  # far below: a variance given as a sigma
+        learned_pim(gyro, acc, 0.01, 3e-8**2, 0.01**2, 9.8)  # another line
+    assert len(caplog.records) == 2
+    assert "test_learned_pim_inputs.py" in caplog.records[0].getMessage()
+
+
+@pytest.mark.parametrize("gravity", [1.0, 0.0, 98.1, [0.0, 0.0, -1.0]])
+def test_gravity_in_another_unit_is_refused(kitti, gravity):
+    gyro, acc, _ = kitti
+    with pytest.raises(ValueError, match="not Earth's gravity"):
+        learned_pim(gyro, acc, 0.01, 1e-8, 1e-6, gravity)

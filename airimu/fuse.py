@@ -371,8 +371,9 @@ def check_gps_units(
     sequence: ImuSequence, path: str | Path, fixes: GpsFixes, sigma_m: float = GPS_SIGMA_UNKNOWN_M
 ) -> None:
     """Refuse a GPS file whose track the IMU explains far worse as read than in another unit: the file re-read
-    with lat/lon in radians (lat/lon files), or x/y/z scaled as km or mm (x/y/z files); a ``DataError`` naming the
-    columns and the likely unit when another reading leaves ``UNIT_REFUSAL_RATIO`` times less motion unexplained
+    with lat/lon in radians (lat/lon files), or x/y/z scaled as km, cm or mm (x/y/z files); a ``DataError`` naming
+    the columns and the likely unit (the best reading) when another reading leaves ``UNIT_REFUSAL_RATIO`` times less
+    motion unexplained
     (``fusion.gps_units.track_misfit``). Measured on 2011_10_03_drive_0027 (fixes from its ground truth, 0.3 m
     noise): as read 0.64 m/s, lat/lon written in radians 2.94 m/s, x/y/z written in km 2.99 m/s, lat and lon
     swapped 2.96 m/s, x and y swapped 2.54 m/s (a mirror image); GTSAM's own KittiGps_converted.txt 0.30 m/s
@@ -393,21 +394,33 @@ def check_gps_units(
         # x and y swapped: a mirror image, which no rotation of the world frame explains (north-east-down read as
         # east-north-up also flips z: a rotation, whose gravity the misfit sees)
         mirrored = lambda: GpsFixes(fixes.t, fixes.pos[:, [1, 0, 2]], fixes.sigma)  # noqa: E731
-        alternatives = {"x/y/z in km": scaled(1000.0), "x/y/z in mm": scaled(0.001), "x and y swapped": mirrored}
+        alternatives = {
+            "x/y/z in km": scaled(1000.0),
+            "x/y/z in cm": scaled(0.01),
+            "x/y/z in mm": scaled(0.001),
+            "x and y swapped": mirrored,
+        }
         columns = "x/y/z"
+    misfits = {}
     for unit, reading in alternatives.items():
         try:
             other = track_misfit(sequence, reading())
         except (DataError, ValueError):  # not even readable so (e.g. radians beyond +-pi/2)
             continue
-        if other is not None and other * UNIT_REFUSAL_RATIO < as_read:
-            raise DataError(
-                path,
-                columns,
-                f"the IMU explains this GPS track far worse as read ({as_read:.3g} m/s of its velocity changes "
-                f"unexplained) than with {unit} ({other:.3g} m/s): {unit}? The {columns} columns are read as "
-                + ("degrees" if columns == "lat/lon" else "m"),
-            )
+        if other is not None:
+            misfits[unit] = other
+    if not misfits:
+        return
+    unit = min(misfits, key=misfits.get)  # the reading that explains the track best, not the first that beats it
+    other = misfits[unit]
+    if other * UNIT_REFUSAL_RATIO < as_read:
+        raise DataError(
+            path,
+            columns,
+            f"the IMU explains this GPS track far worse as read ({as_read:.3g} m/s of its velocity changes "
+            f"unexplained) than with {unit} ({other:.3g} m/s): {unit}? The {columns} columns are read as "
+            + ("degrees" if columns == "lat/lon" else "m"),
+        )
 
 
 def check_model_against_raw(sequence: ImuSequence, model, fixes: GpsFixes, checkpoint) -> None:

@@ -38,7 +38,7 @@ def drive(shared_data):
 
 def gps_files(folder, seq):
     """The drive's ground truth at 1 Hz with 0.3 m noise, written as lat/lon in degrees and in radians, and as
-    x/y/z in m and in km."""
+    x/y/z in m, km, cm and mm."""
     import pymap3d
 
     index = np.arange(0, len(seq.t), 100)
@@ -52,6 +52,8 @@ def gps_files(folder, seq):
         "swapped": ("t,lat,lon,alt", np.c_[t, lon, lat, alt]),
         "m": ("t,x,y,z", np.c_[t, pos]),
         "km": ("t,x,y,z", np.c_[t, pos / 1000.0]),
+        "cm": ("t,x,y,z", np.c_[t, pos * 100.0]),
+        "mm": ("t,x,y,z", np.c_[t, pos * 1000.0]),
         "xy": ("t,x,y,z", np.c_[t, pos[:, [1, 0, 2]]]),
     }
     paths = {}
@@ -75,8 +77,9 @@ def test_gps_in_the_wrong_unit_is_refused_naming_the_columns_and_the_unit(drive,
         check_gps_units(drive, paths[good], read_gps_csv(paths[good]))  # measured misfit 0.64 m/s: accepted
     with pytest.raises(DataError, match=r"field 'lat/lon'.*lat/lon in radians\?"):
         check_gps_units(drive, paths["rad"], read_gps_csv(paths["rad"]))  # 2.94 against 0.64 m/s re-read
-    with pytest.raises(DataError, match=r"field 'x/y/z'.*x/y/z in km\?"):
-        check_gps_units(drive, paths["km"], read_gps_csv(paths["km"]))
+    for unit in ("km", "cm", "mm"):  # cm was called "mm?": the first reading that beat as-read was named
+        with pytest.raises(DataError, match=rf"field 'x/y/z'.*x/y/z in {unit}\?"):
+            check_gps_units(drive, paths[unit], read_gps_csv(paths[unit]))
     # columns swapped: a mirror image of the track, which no heading explains
     with pytest.raises(DataError, match=r"field 'lat/lon'.*lat and lon swapped\?"):
         check_gps_units(drive, paths["swapped"], read_gps_csv(paths["swapped"]))

@@ -449,7 +449,7 @@ def check_model_against_raw(sequence: ImuSequence, model, fixes: GpsFixes, check
 
 def check_gps_clock(sequence: ImuSequence, source: object, fixes: GpsFixes) -> float | None:
     """Warn when the GPS track fits the IMU's motion far better shifted in time (``fusion.gps_units.clock_offset``:
-    the best shift within +-5 s explains it ``CLOCK_RATIO`` times better than as read, and is at least
+    the best shift within +-60 s explains it ``CLOCK_RATIO`` times better than as read, and is at least
     ``CLOCK_MIN_S``): a clock offset between the GPS and the IMU, which the fusion would otherwise take for motion.
     Returns the estimated offset (s the fixes are late; ``--gps-time-offset`` subtracts it), or None when there is
     none. GTSAM's own GPS file against the raw KITTI drive's IMU fits best 0.1 s later (misfit 0.77 against 1.58
@@ -461,8 +461,8 @@ def check_gps_clock(sequence: ImuSequence, source: object, fixes: GpsFixes) -> f
         return None
     side = "late" if offset > 0 else "early"
     log.warning(
-        "%s: the GPS fixes look %.1f s %s against the IMU's clock: shifted by that the IMU explains their track's "
-        "motion to %.3g m/s, as read to %.3g m/s. A clock offset between GPS and IMU? Pass --gps-time-offset %.1f "
+        "%s: the GPS fixes look %.2f s %s against the IMU's clock: shifted by that the IMU explains their track's "
+        "motion to %.3g m/s, as read to %.3g m/s. A clock offset between GPS and IMU? Pass --gps-time-offset %.2f "
         "(subtracted from every fix time) if so.",
         source,
         abs(offset),

@@ -225,11 +225,24 @@ def fixes_on_samples(sequence: ImuSequence) -> ImuSequence:
         raise InputError(f"{sequence.name}: no recorded GPS fixes")
     _, on_sample = nearest_samples(sequence, sequence.gps.t)
     if not on_sample.all():
+        t = sequence.gps.t[~on_sample]
+        before, after = int((t < sequence.t[0]).sum()), int((t > sequence.t[-1]).sum())
+        where = [
+            f"{n} {text}"
+            for n, text in (
+                (before, "before the first IMU sample"),
+                (after, "after the last IMU sample"),
+                (len(t) - before - after, "in gaps of the IMU"),
+            )
+            if n
+        ]
         log.warning(
-            "%s: %d of %d GPS fixes lie in gaps of the IMU and are not used",
+            "%s: %d of %d GPS fixes are not used: %s%s",
             sequence.name,
-            int((~on_sample).sum()),
+            len(t),
             on_sample.size,
+            ", ".join(where),
+            " (a GPS file of a longer stretch, or in another time base?)" if before or after else "",
         )
     fixes = sequence.gps
     return dataclasses.replace(sequence, gps=fixes[on_sample])

@@ -252,3 +252,20 @@ def test_each_gps_fix_constrains_the_state_at_its_own_time(shared_data):
     assert kf_grid > 1.8 * kf_fix  # the grid's keyframes were added, the fixes' kept
     assert gridded < 1.1 * per_fix < 0.5  # measured 0.290 and 0.287 m
     assert before > 5 * gridded  # measured 3.87 m
+
+
+def test_unused_fixes_are_named_by_where_they_lie(caplog):
+    """A fix after the end of the IMU log was reported as lying "in a gap of the IMU"."""
+    from airimu_core.sequence import GpsFixes
+    from learned_imu.datasets.simulator import simulate
+    from learned_imu.export import fixes_on_samples
+
+    seq = simulate("car", duration_s=10.0, seed=1, gps_rate_hz=1.0, gps_sigma_m=0.5)
+    t = np.r_[seq.t[0] - 5.0, seq.gps.t, seq.t[-1] + 3.0]
+    pos = np.r_[seq.gps.pos[:1], seq.gps.pos, seq.gps.pos[-1:]]
+    late = dataclasses.replace(seq, gps=GpsFixes(t, pos, np.full((len(t), 3), 0.5)))
+    with caplog.at_level("WARNING"):
+        kept = fixes_on_samples(late)
+    assert len(kept.gps.t) == len(seq.gps.t)
+    assert "2 of 12 GPS fixes are not used: 1 before the first IMU sample, 1 after the last IMU sample" in caplog.text
+    assert "in gaps" not in caplog.text and "another time base?" in caplog.text

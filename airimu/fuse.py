@@ -132,6 +132,7 @@ def run_fuse(request: FuseRequest) -> FuseDone:
     if fixes is not None:
         if request.gps_time_offset_s:
             fixes = dataclasses.replace(fixes, t=fixes.t - request.gps_time_offset_s)
+        check_gps_times(sequence, request.gps_file or request.source, fixes)
         check_gps_clock(sequence, request.gps_file or request.source, fixes)
     model = motion = None
     if request.checkpoint:
@@ -445,6 +446,36 @@ def check_model_against_raw(sequence: ImuSequence, model, fixes: GpsFixes, check
             f"raw samples do ({with_model:.3g} m/s of its velocity changes unexplained against {raw:.3g}): a model "
             "of another IMU, platform or unit? Fuse without --checkpoint, or pass --trust-model to use it anyway",
         )
+
+
+TIME_UNITS = {"ms": 1e-3, "us": 1e-6, "ns": 1e-9}  # GPS times in these, read as s
+
+
+def check_gps_times(sequence: ImuSequence, source: object, fixes: GpsFixes) -> None:
+    """Refuse GPS times that miss the IMU's span, naming the GPS file (not the IMU's) and, when the times in ms, us
+    or ns would fall inside it, that unit; else both spans (another time base: GPS week seconds against the IMU's
+    boot time, say) and the flag that shifts them."""
+    t0, t1 = float(sequence.t[0]), float(sequence.t[-1])
+    if int(((fixes.t >= t0) & (fixes.t <= t1)).sum()) >= 2:
+        return
+    spacing = float(np.median(np.diff(fixes.t))) if len(fixes.t) > 1 else np.nan
+    for unit, scale in TIME_UNITS.items():
+        inside = (fixes.t * scale >= t0) & (fixes.t * scale <= t1)
+        rate_ok = 0.01 <= spacing * scale <= 100.0  # read so, the fixes come at 0.01-100 Hz, as GPS does
+        if rate_ok and inside.sum() >= max(2, 0.5 * len(fixes.t)):
+            raise DataError(
+                source,
+                "t",
+                f"the fix times ({fixes.t[0]:.6g} to {fixes.t[-1]:.6g}) miss the IMU's ({t0:.6g} to {t1:.6g} s) but "
+                f"fall inside it read as {unit}: convert the GPS times to seconds",
+            )
+    raise DataError(
+        source,
+        "t",
+        f"fewer than 2 fixes lie within the IMU's time span: the fixes span {fixes.t[0]:.6g} to {fixes.t[-1]:.6g} "
+        f"s, the IMU {t0:.6g} to {t1:.6g} s. Another time base (GPS time against the IMU's clock)? --gps-time-offset "
+        f"subtracts a constant from every fix time ({fixes.t[0] - t0:.10g} aligns the first fix with the IMU's start)",
+    )
 
 
 def check_gps_clock(sequence: ImuSequence, source: object, fixes: GpsFixes) -> float | None:

@@ -53,7 +53,33 @@ def read_gps_csv(
         pos = pos[:, [1, 0, 2]] if swap else pos
         pos = _enu(np.column_stack([np.degrees(pos[:, :2]), pos[:, 2]]) if angle_unit == "rad" else pos, path)
     sigma = _sigmas(table, names, path, sigma_m)
+    if {"sigma", "sigma_x"} & set(names):
+        _check_sigma_unit(path, "sigma_x/sigma_y/sigma_z" if "sigma_x" in names else "sigma", pos, sigma)
     return GpsFixes(t=t, pos=pos, sigma=sigma)
+
+
+SIGMA_RATIO = 100.0  # a sigma column this many times the track's own scatter is in another unit
+
+
+def _check_sigma_unit(path: Path, column: str, pos: np.ndarray, sigma: np.ndarray) -> None:
+    """Refuse a sigma column ``SIGMA_RATIO`` times above the scatter of the positions themselves (1.4826 x the MAD
+    of their second differences / sqrt(6), per axis, the median over the axes: a fix's noise, plus the motion's
+    acceleration over the fix spacing, which only raises it): sigmas in mm or cm read as m leave the GPS out of the
+    graph, which then reports itself under-constrained or drifts."""
+    if len(pos) < 20:
+        return
+    second = pos[2:] - 2.0 * pos[1:-1] + pos[:-2]
+    scatter = float(np.median(1.4826 * np.median(np.abs(second - np.median(second, axis=0)), axis=0) / np.sqrt(6.0)))
+    given = float(np.median(sigma))
+    if scatter > 0 and given > SIGMA_RATIO * scatter:
+        # the scatter includes the motion's acceleration, so the ratio is a lower bound: 0.05-m fixes with sigmas
+        # in mm read 151-216x on KITTI drives, 0.5-m ones 838-923x; the unit is not told apart from it
+        raise DataError(
+            path,
+            column,
+            f"the one-sigma column's median {given:.4g} is {given / scatter:.0f}x the scatter of the positions "
+            f"themselves ({scatter:.3g} m): in cm or mm, not m? The sigma columns are read as m",
+        )
 
 
 def gps_file_layout(path: str | Path) -> str:

@@ -3,6 +3,7 @@ Real data: GTSAM's KITTI drive (2011_10_03_drive_0027), its OXTS ground truth an
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import re
@@ -448,3 +449,40 @@ def test_a_model_that_fits_the_gps_far_worse_than_the_raw_imu_is_refused(tmp_pat
     request = FuseRequest(seq, "sim", tmp_path / "f", FuseConfig(), checkpoint="broken.pt", trust_model=True)
     done = run_fuse(request)  # insisted on: fused, and the result shows what the model does
     assert done.summary.rmse_to_gps_m > 20.0  # measured 54.6 m; the untrained model fuses to 2.2 m
+
+
+def test_gps_times_in_another_unit_or_time_base_name_the_gps_file():
+    """GPS times in us were reported as the IMU file's problem ("field 'gps': fewer than 2 fixes"); now the GPS
+    file's field 't' is named, with the unit when the times read so fall inside the IMU's span, else both spans."""
+    from airimu.fuse import check_gps_times
+    from learned_imu.datasets.simulator import simulate
+
+    seq = simulate("car", duration_s=60.0, seed=2, gps_rate_hz=1.0, gps_sigma_m=0.5)
+    fixes = seq.gps
+    check_gps_times(seq, "gps.csv", fixes)  # seconds: accepted
+    for unit, scale in (("ms", 1e3), ("us", 1e6), ("ns", 1e9)):
+        shifted = GpsFixes((fixes.t + 1000.0) * scale, fixes.pos, fixes.sigma)
+        moved = dataclasses.replace(seq, t=seq.t + 1000.0)
+        with pytest.raises(DataError, match=rf"gps\.csv: field 't'.*read as {unit}: convert the GPS times"):
+            check_gps_times(moved, "gps.csv", shifted)
+    far = GpsFixes(fixes.t + 1e6, fixes.pos, fixes.sigma)  # 1 Hz fixes 1e6 s later: not ms (they would be 1 kHz)
+    with pytest.raises(DataError, match=r"gps\.csv: field 't'.*Another time base.*1000000 aligns"):
+        check_gps_times(seq, "gps.csv", far)
+
+
+def test_a_gps_sigma_column_in_mm_is_refused_naming_the_file_and_column(drive, tmp_path):
+    """Sigmas in mm read as m left the GPS out of the graph ("under-constrained", naming neither file nor column).
+    Real drive, 1 Hz fixes with 0.5 m noise: sigma 0.5 accepted; 500 (mm) refused; 3-m fixes with sigmas in mm
+    too (the track's own scatter, 2.6 m, is the yardstick)."""
+    index = np.arange(0, len(drive.t), 100)
+    index = index[drive.gt.valid[index]]
+    for noise, sigma, refused in ((0.5, 0.5, False), (0.5, 500.0, True), (3.0, 3000.0, True), (3.0, 3.0, False)):
+        pos = drive.gt.pos[index] + np.random.default_rng(1).normal(0.0, noise, (len(index), 3))
+        path = tmp_path / "gps.csv"
+        rows = np.c_[drive.t[index], pos, np.full(len(index), sigma)]
+        np.savetxt(path, rows, delimiter=",", header="t,x,y,z,sigma", comments="", fmt="%.6f")
+        if refused:
+            with pytest.raises(DataError, match=r"gps\.csv: field 'sigma'.*in cm or mm, not m\?"):
+                read_gps_csv(path)
+        else:
+            np.testing.assert_allclose(read_gps_csv(path).sigma, sigma)

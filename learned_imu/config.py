@@ -216,6 +216,11 @@ class TrainConfig:
     # use the average, the optimiser steps the raw weights; the horizon is about 1 / (1 - ema_decay) steps
     ema_decay: float = 0.0
     early_stop_patience: int = 0  # stop after this many epochs without a better validation loss; 0 = never
+    # the validation loss (plateau schedule, best epoch, early stop) with the covariance's likelihood term, as the
+    # training loss has it: the official AirIMU's test loss (train.py steps its scheduler and picks best_model on
+    # get_loss, cov term included). False: the state loss alone, so that runs with and without the covariance loss
+    # are chosen by the same measure
+    val_covariance: bool = False
     calibration_steps: int = 200  # second stage: noise decoders alone on the NLL (0 = off; see train.py)
     # then one scale per sensor's noise fitted on the validation windows (train.fit_noise_scales); only where the
     # validation sequences are not the ones evaluated

@@ -276,6 +276,7 @@ def _train_run(config: ExperimentConfig, folder: Path, progress: bool, world: Wo
         device=resolve_device(t.device),
         min_lr=t.min_lr,
         ema_decay=t.ema_decay,
+        val_covariance=t.val_covariance,
     )
     trained_on = TrainedOn(
         rate_hz=float(np.median([1.0 / float(np.median(np.diff(s.t))) for s in train_seqs])),

@@ -112,6 +112,7 @@ class Trainer:
         device: str = "cpu",
         min_lr: float = 0.0,
         ema_decay: float = 0.0,
+        val_covariance: bool = False,
     ):
         if batch_size < 1 or len(train) == 0 or len(val) == 0:
             raise InputError(f"Trainer: need batch_size >= 1 and windows to train and validate, got {batch_size}")
@@ -120,6 +121,7 @@ class Trainer:
         # resumed GPU run is not bit-exact)
         self.model, self.train, self.val = model.to(device), train.to(device), val.to(device)
         self.batch_size, self.use_covariance = batch_size, use_covariance
+        self.val_covariance = val_covariance and use_covariance
         self.weights = weights or LossWeights()
         self.world = world
         self.net = model if world is None else wrap(model, world, () if use_covariance else ("cov_decoder",))
@@ -195,12 +197,14 @@ class Trainer:
 
         The model-selection criterion (best epoch, plateau, early stop) of every variant: the covariance's NLL is
         left out, so runs with and without the covariance loss pick their corrections by the same measure (the noise
-        decoders are calibrated afterwards anyway, ``calibrate_uncertainty``)."""
+        decoders are calibrated afterwards anyway, ``calibrate_uncertainty``); with ``val_covariance`` it is in, as
+        the training loss has it (the official AirIMU's test loss)."""
         self.model.eval()
         total = 0.0
         for first in range(0, len(self.val), self.batch_size):
             batch = self.val.select(torch.arange(first, min(first + self.batch_size, len(self.val))))
-            total += window_loss(self.model, batch, self.weights, use_covariance=False).item() * batch.windows
+            loss = window_loss(self.model, batch, self.weights, use_covariance=self.val_covariance)
+            total += loss.item() * batch.windows
         return total / self.val.windows
 
     def state_dict(self) -> dict:

@@ -426,3 +426,23 @@ def test_training_on_chunks_lowers_the_loss(mh01):
     for entry in (first, second):
         assert np.isfinite(entry.train_loss) and np.isfinite(entry.val_loss) and entry.train_loss > 0
     assert second.train_loss < first.train_loss
+
+
+def test_the_validation_loss_takes_the_covariance_term_when_asked(mh01):
+    """``train.val_covariance`` (the official AirIMU's test loss): the validation loss is the training loss's
+    formula, covariance likelihood included, so it differs from the state loss alone; with the covariance loss off
+    the flag changes nothing."""
+    from learned_imu.training.train import window_loss
+
+    torch.manual_seed(0)
+    train = make_chunks(mh01.part(0.0, 0.2), 1500, 500, 50, 50, context=18)
+    val = make_chunks(mh01.part(0.3, 0.4), 1500, 500, 50, 50, context=18)
+    model = AirImuNet(gru_sizes=(16, 16)).eval()
+    state = Trainer(model, train, val, batch_size=2, seed=0).validation_loss()
+    full = Trainer(model, train, val, batch_size=2, seed=0, val_covariance=True)
+    with torch.no_grad():
+        expected = float(window_loss(model.eval(), val, full.weights, use_covariance=True))
+    assert abs(full.validation_loss() - state) > 1e-3 * abs(state)
+    assert full.validation_loss() == pytest.approx(expected, rel=1e-5)
+    off = Trainer(model, train, val, batch_size=2, seed=0, use_covariance=False, val_covariance=True)
+    assert off.validation_loss() == pytest.approx(state, rel=1e-12)

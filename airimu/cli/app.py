@@ -32,6 +32,9 @@ def _check_noise_flags(gyro: float, acc: float) -> None:
         raise typer.BadParameter(str(error)) from None
 
 
+GTSAM_EXAMPLE = "gtsam"  # --dataset kitti --path gtsam: the KITTI IMU and GPS files installed with gtsam's wheel
+
+
 def _read_with_options(dataset: str, path: str, options: list[str], imu_file: str | None = None):
     """One sequence read with ``key=value`` reader options, each checked against the reader's signature
     (``learned_imu.datasets.check_options``). Values are YAML (``gravity=9.81``, ``header=true``); a list option
@@ -57,6 +60,8 @@ def _read_with_options(dataset: str, path: str, options: list[str], imu_file: st
             parsed[key] = yaml.safe_load(text)
         except yaml.YAMLError:
             parsed[key] = text
+    if dataset == "kitti" and path == GTSAM_EXAMPLE:  # the drive GTSAM ships: read from the installed gtsam
+        return read_sequence(dataset, None, **parsed)
     return read_sequence(dataset, path, **parsed)
 
 

@@ -118,7 +118,11 @@ GPS_HELP = "GPS CSV (t,x,y,z or t,lat,lon,alt; optional sigma columns); default:
 @app.command()
 def fuse(
     dataset: str = typer.Option(..., help="reader name: euroc, kitti, kitti_raw, broad, rosbag, csv"),
-    path: str = typer.Option(..., help="the IMU log (file or folder, as the reader takes it)"),
+    path: str = typer.Option(
+        ...,
+        help="the IMU log (file or folder, as the reader takes it); with --dataset kitti, 'gtsam': the drive "
+        "installed with gtsam (nothing to download)",
+    ),
     out: str = typer.Option(..., help="folder for fused.tum, marginals.npz, fused.rrd, fused.png, summary.json"),
     config: str = typer.Option(
         "fuse.yaml", help="fusion config (YAML; default the shipped configs/fuse.yaml); the flags below override it"

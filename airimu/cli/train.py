@@ -304,3 +304,49 @@ def export_model(
     _check_outputs(files={"--out": out})
     written = export_checkpoint(checkpoint, out, format)
     _wide_console().print(f"{format} model of {checkpoint} written to {written}")
+
+
+@app.command("noise")
+def noise_command(
+    dataset: str = typer.Option(..., help="reader name: euroc, tumvi, kitti, kitti_raw, broad, rosbag, csv"),
+    path: str = typer.Option(..., help="a recording with a still stretch"),
+    out: str = typer.Option(..., help="folder for imu_kalibr.yaml, gtsam_preintegration.yaml, allan.json, allan.png"),
+    start: float = typer.Option(0.0, help="the still stretch's start, s from the first sample"),
+    end: float = typer.Option(None, help="its end, s from the first sample (default: the recording's end)"),
+    reader_option: list[str] = typer.Option(None, help=READER_OPTION_HELP),  # noqa: B008 (typer reads repeats as a list)
+    datasheet: list[str] = typer.Option(  # noqa: B008
+        None,
+        help="a datasheet value to show beside, KEY=VALUE UNIT (repeatable): KEY a Kalibr name "
+        "(gyroscope_noise_density, ...), UNIT one of deg/sqrt(h), deg/h, deg/s/sqrt(Hz), rad/s/sqrt(Hz), "
+        "ug/sqrt(Hz), mg/sqrt(Hz), m/s/sqrt(h), m/s^2/sqrt(Hz), mg, ug",
+    ),
+) -> None:
+    """Noise densities from a still recording: the Allan deviation of each axis (allantools), white noise, bias
+    instability and random walk fitted, written in Kalibr's names and as GTSAM's continuous-time covariances, and
+    plotted (learned_imu.evaluation.allan, airimu.noise)."""
+    from pathlib import Path
+
+    from airimu.noise import still_noise, write_noise
+    from learned_imu.evaluation.allan import from_datasheet
+
+    if not (math.isfinite(start) and start >= 0) or (end is not None and not (math.isfinite(end) and end > start)):
+        raise typer.BadParameter(f"--start / --end: need 0 <= start < end (s), got {start}, {end}")
+    _check_outputs(folders={"--out": out})
+    sheet = {}
+    for item in datasheet or []:
+        key, _, rest = item.partition("=")
+        value, _, unit = rest.strip().partition(" ")
+        try:
+            sheet[key] = from_datasheet(float(value), unit.strip())
+        except ValueError:
+            raise typer.BadParameter(f"--datasheet: expected KEY=VALUE UNIT, got {item!r}") from None
+    sequence = _read_with_options(dataset, path, reader_option or [])
+    result = still_noise(sequence, start, end)
+    written = write_noise(result, Path(out), sheet)
+    kalibr = result.kalibr()
+    console = _wide_console()
+    for key, value in kalibr.items():
+        beside = f"   (datasheet {sheet[key]:.3g})" if key in sheet else ""
+        console.print(f"{key}: {'-' if value is None else f'{value:.3g}'}{beside}")
+    for path_written in written:
+        console.print(f"written: {path_written}")

@@ -1,6 +1,7 @@
 """Seeded IMU simulator: the embedded default data source for demos, examples and tests.
 
-A smooth trajectory (profile ``"drone"``, ``"handheld"`` or ``"car"``) gives ground truth at the sample times;
+A smooth trajectory (profile ``"drone"``, ``"handheld"``, ``"car"``, or ``"still"``: at rest) gives ground truth at
+the sample times;
 the clean IMU is defined so that the standard discrete integrator reproduces it exactly:
 
     gyro_k = Log(R_k^T R_{k+1}) / dt,   acc_k = R_k^T ((v_{k+1} - v_k) / dt - g),
@@ -29,7 +30,7 @@ from airimu_core.errors import InputError
 from airimu_core.sequence import GpsFixes, GroundTruth, ImuSequence
 
 GRAVITY_M_S2 = 9.81
-PROFILES = ("drone", "handheld", "car")
+PROFILES = ("drone", "handheld", "car", "still")  # still: a parked IMU (for airimu noise)
 
 
 @dataclass(frozen=True)
@@ -285,7 +286,11 @@ def _bursts(rng: np.random.Generator, t: np.ndarray, duty: float) -> np.ndarray:
 
 
 def _trajectory(profile: str, t: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """World <- IMU rotations (N, 3, 3) and velocities (N, 3) of a smooth, seeded profile (sums of sinusoids)."""
+    """World <- IMU rotations (N, 3, 3) and velocities (N, 3) of a smooth, seeded profile (sums of sinusoids);
+    ``"still"``: a level IMU at rest, at a seeded heading."""
+    if profile == "still":
+        yaw = np.full(len(t), rng.uniform(-np.pi, np.pi))
+        return _rpy_to_matrix(np.zeros(len(t)), np.zeros(len(t)), yaw), np.zeros((len(t), 3))
     speed, tilt, yaw_rate, freq = {
         "drone": (2.0, 0.25, 0.4, 0.15),
         "handheld": (1.2, 0.6, 1.5, 0.5),

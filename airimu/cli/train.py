@@ -350,3 +350,25 @@ def noise_command(
         console.print(f"{key}: {'-' if value is None else f'{value:.3g}'}{beside}")
     for path_written in written:
         console.print(f"written: {path_written}")
+
+
+@app.command("models")
+def models_command() -> None:
+    """The models installed with the package (use the name as --checkpoint / --motion), each with its card: what
+    it was trained on, the IMU and rate, the metrics it reaches and where, the data's licence."""
+    from learned_imu.network.shipped import SHIPPED_DIR, shipped_models
+
+    console = _wide_console()
+    cards = shipped_models()
+    if not cards:
+        console.print(f"no models installed in {SHIPPED_DIR}")
+        return
+    for name, card in cards.items():
+        size = (SHIPPED_DIR / f"{name}.pt").stat().st_size / 1e6
+        console.print(f"[bold]{name}[/bold] ({card['kind']}, {size:.2f} MB): {card['summary']}")
+        console.print(f"  trained on: {card['trained_on']}")
+        console.print(f"  IMU: {card['imu']}, {card['rate_hz']:g} Hz (other rates are refused)")
+        for metric in card["metrics"]:
+            console.print(f"  measured: {metric}")
+        console.print(f"  licence of the training data: {card['licence']}")
+        console.print(f"  trained with: {card['command']}")

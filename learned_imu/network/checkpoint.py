@@ -185,10 +185,18 @@ def save_checkpoint(path: str | Path, checkpoint: Checkpoint) -> Path:
 
 def load_checkpoint(path: str | Path) -> Checkpoint:
     """Read and validate a checkpoint (any version in ``READABLE``); a corrupt, foreign or newer file, or one whose
-    stored config this code cannot read, is a ``DataError`` naming it and the field."""
+    stored config this code cannot read, is a ``DataError`` naming it and the field. ``path`` may name a model
+    installed with the package (``learned_imu.network.shipped``: ``"euroc"``) where no file of that name exists."""
     path = Path(path)
     if not path.is_file():
-        raise DataError(path, "file", "checkpoint not found")
+        from learned_imu.network.shipped import shipped_path
+
+        path = shipped_path(str(path)) or path
+    if not path.is_file():
+        from learned_imu.network.shipped import shipped_models
+
+        names = ", ".join(shipped_models()) or "none"
+        raise DataError(path, "file", f"checkpoint not found (nor a shipped model of that name; shipped: {names})")
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as error:  # torch's message goes on to advise weights_only=False: not repeated

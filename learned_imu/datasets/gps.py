@@ -58,11 +58,11 @@ def read_gps_csv(
     return GpsFixes(t=t, pos=pos, sigma=sigma)
 
 
-SIGMA_RATIO = 100.0  # a sigma column this many times the track's own scatter is in another unit
+SIGMA_RATIO = 30.0  # a sigma column this many times the track's own scatter is in another unit
 
 
 def _check_sigma_unit(path: Path, column: str, pos: np.ndarray, sigma: np.ndarray) -> None:
-    """Refuse a sigma column ``SIGMA_RATIO`` times above the scatter of the positions themselves (1.4826 x the MAD
+    """Refuse a sigma column ``SIGMA_RATIO`` (30) times above the scatter of the positions themselves (1.4826 x the MAD
     of their second differences / sqrt(6), per axis, the median over the axes: a fix's noise, plus the motion's
     acceleration over the fix spacing, which only raises it): sigmas in mm or cm read as m leave the GPS out of the
     graph, which then reports itself under-constrained or drifts."""

@@ -476,7 +476,8 @@ def test_a_gps_sigma_column_in_mm_is_refused_naming_the_file_and_column(drive, t
     too (the track's own scatter, 2.6 m, is the yardstick)."""
     index = np.arange(0, len(drive.t), 100)
     index = index[drive.gt.valid[index]]
-    for noise, sigma, refused in ((0.5, 0.5, False), (0.5, 500.0, True), (3.0, 3000.0, True), (3.0, 3.0, False)):
+    cases = ((0.5, 0.5, False), (0.5, 50.0, True), (0.5, 500.0, True), (3.0, 3000.0, True), (3.0, 3.0, False))
+    for noise, sigma, refused in cases:  # 50 and 500: 0.5 m in cm and in mm
         pos = drive.gt.pos[index] + np.random.default_rng(1).normal(0.0, noise, (len(index), 3))
         path = tmp_path / "gps.csv"
         rows = np.c_[drive.t[index], pos, np.full(len(index), sigma)]

@@ -79,6 +79,10 @@ class FusedSummary:
     # against the reference fix nearest the end within 1 s (``error_to_gps_m``; None without)
     outages: list | None = None
     motion_factors: int = 0  # learned body-frame velocity factors in the graph
+    # the first state the graph started from (its prior's mean: the GPS-track alignment, or --start) against the
+    # ground truth where there is one: attitude error, deg, split into roll/pitch (tilt: gravity's direction) and
+    # yaw (heading); None without ground truth at the first keyframe
+    initial_attitude_error_deg: dict | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -563,9 +567,36 @@ def write_outputs(result: Fused, folder: Path, reference: GpsFixes | None = None
             for (begin, duration), end in zip(result.outages, result.outage_ends, strict=True)
         ],
         result.residuals["motion"].factors if "motion" in result.residuals else 0,
+        initial_attitude_error(result),
     )
     written.append(write_json_atomic(folder / "summary.json", dataclasses.asdict(summary)))
     return summary, written
+
+
+def initial_attitude_error(result: Fused) -> dict | None:
+    """``FusedSummary.initial_attitude_error_deg``: the first keyframe's prior mean (what the graph started from)
+    against the ground truth there, as tilt (the angle between the two up axes) and heading (yaw about world z)."""
+    import gtsam
+
+    gt = result.sequence.gt
+    trajectory = result.solution.trajectory
+    if gt is None:
+        return None
+    sample = int(np.searchsorted(result.sequence.t, trajectory.t[0]))
+    if sample >= len(result.sequence.t) or not gt.valid[sample]:
+        return None
+    graph = result.solution.graph
+    prior = None
+    for i in range(graph.size()):
+        factor = graph.at(i)
+        if isinstance(factor, gtsam.PriorFactorPose3) and factor.keys()[0] == gtsam.symbol_shorthand.X(0):
+            prior = factor.prior().rotation().matrix()
+    if prior is None:
+        return None
+    truth = gt.rot[sample]
+    tilt = float(np.degrees(np.arccos(np.clip(prior[2] @ truth[2], -1.0, 1.0))))  # world z in the body frame
+    yaw = np.degrees(np.arctan2(prior[1, 0], prior[0, 0]) - np.arctan2(truth[1, 0], truth[0, 0]))
+    return {"tilt": tilt, "yaw": float((yaw + 180.0) % 360.0 - 180.0)}
 
 
 def _outage_errors(begin: float, duration: float, end, truth, reference: GpsFixes) -> dict:

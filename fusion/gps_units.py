@@ -27,7 +27,9 @@ STRETCH_TRIPLES = 6  # triples sharing one attitude unknown (gyro drift over ~2 
 CLOCK_SEARCH_S = 60.0  # GPS clock offsets searched, +- s: every 0.5 s, then every CLOCK_STEP_S around the best
 CLOCK_COARSE_STEP_S = 0.5
 CLOCK_STEP_S = 0.05
-CLOCK_RATIO = 2.0  # the best offset explains the track this many times better than as read: a clock offset
+CLOCK_RATIO = 1.25  # the best offset explains the track this many times better than as read: a clock offset
+# (on-time fixes, 5 KITTI drives x 10 noise draws: at most 1.11 where the best offset is >= CLOCK_MIN_S;
+# 1 s late: 1.05-3.0)
 CLOCK_MIN_S = 0.3  # smaller best offsets are not reported (the fixes' association to IMU samples moves the misfit)
 
 

@@ -27,3 +27,11 @@ cli = Path(sys.executable).parent / "airimu"
 for command in (["--help"], ["demo", "--help"], ["fuse", "--help"]):
     subprocess.run([str(cli), *command], check=True, capture_output=True)
 print("airimu starts from the wheel")
+from learned_imu.network.checkpoint import load_checkpoint  # noqa: E402
+from learned_imu.network.shipped import SHIPPED_DIR, shipped_models  # noqa: E402
+
+assert "site-packages" in SHIPPED_DIR.parts, f"shipped models not from the installed wheel: {SHIPPED_DIR}"
+for name in shipped_models():
+    load_checkpoint(name)
+subprocess.run([str(cli), "models"], check=True, capture_output=True)
+print(f"{len(shipped_models())} shipped models load by name from the wheel")

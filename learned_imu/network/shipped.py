@@ -1,7 +1,7 @@
 """Models installed with the package: ``--checkpoint euroc`` instead of a path, and the model cards ``airimu models``
 prints.
 
-Each shipped model is two files in ``learned_imu/network/shipped/``: ``<name>.pt``, a checkpoint of the one format
+Each shipped model is two files in ``learned_imu/network/shipped_models/``: ``<name>.pt``, a checkpoint of the one format
 (``learned_imu.network.checkpoint``) whose trainer state is the weights alone, stored in float16 (the optimiser,
 schedule and RNG states of a run are left out: a shipped model is for inference and fine-tuning from, not for
 resuming), and ``<name>.yaml``, its card: what it was trained on, the IMU and rate, the metrics it reaches and where
@@ -17,7 +17,7 @@ import yaml
 
 from airimu_core.errors import DataError
 
-SHIPPED_DIR = Path(__file__).resolve().parent / "shipped"
+SHIPPED_DIR = Path(__file__).resolve().parent / "shipped_models"
 CARD_KEYS = ("name", "kind", "summary", "trained_on", "imu", "rate_hz", "metrics", "licence", "command")
 
 

@@ -1,8 +1,8 @@
 """Models installed with the package: ``--checkpoint euroc`` instead of a path, and the model cards ``airimu models``
 prints.
 
-Each shipped model is two files in ``learned_imu/network/shipped_models/``: ``<name>.pt``, a checkpoint of the one format
-(``learned_imu.network.checkpoint``) whose trainer state is the weights alone, stored in float16 (the optimiser,
+Each shipped model is two files in ``learned_imu/network/shipped_models/``: ``<name>.pt``, a checkpoint of the one
+format (``learned_imu.network.checkpoint``) whose trainer state is the weights alone, stored in float16 (the optimiser,
 schedule and RNG states of a run are left out: a shipped model is for inference and fine-tuning from, not for
 resuming), and ``<name>.yaml``, its card: what it was trained on, the IMU and rate, the metrics it reaches and where
 (measured in float32 and with the float16 file), the data's licence. ``load_checkpoint`` takes a shipped name

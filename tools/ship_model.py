@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 
 import torch
+import yaml
 
 from learned_imu.datasets import read_sequence
 from learned_imu.network.checkpoint import load_checkpoint, save_checkpoint
@@ -21,11 +22,13 @@ def main() -> None:
     parser.add_argument("name")
     parser.add_argument("--dataset", required=True)
     parser.add_argument("--path", required=True)
+    parser.add_argument("--option", action="append", default=[], help="a reader option key=value (repeatable)")
     args = parser.parse_args()
     full = load_checkpoint(args.checkpoint)
     shipped = save_checkpoint(SHIPPED_DIR / f"{args.name}.pt", slim(full, half=True))
     back = load_checkpoint(shipped)
-    sequence = read_sequence(args.dataset, args.path)
+    options = {key: yaml.safe_load(value) for key, _, value in (o.partition("=") for o in args.option)}
+    sequence = read_sequence(args.dataset, args.path, **options)
     if full.kind == "correction":
         from learned_imu.network.inference import correct
 

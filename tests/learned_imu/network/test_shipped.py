@@ -8,7 +8,7 @@ import torch
 from typer.testing import CliRunner
 
 from airimu.cli import app
-from airimu_core.errors import DataError
+from airimu_core.errors import DataError, InputError
 from learned_imu.network.checkpoint import load_checkpoint
 from learned_imu.network.shipped import CARD_KEYS, SHIPPED_DIR, shipped_models, shipped_path
 
@@ -39,3 +39,14 @@ def test_airimu_models_prints_the_cards():
     assert result.exit_code == 0, result.output
     for name, card in shipped_models().items():
         assert name in result.output and card["licence"].split()[0] in result.output
+
+
+def test_a_shipped_model_refuses_a_recording_of_another_rate():
+    """The KITTI model (100 Hz) on a 200 Hz recording: refused, naming both rates, as any checkpoint is."""
+    from learned_imu.datasets.simulator import simulate
+    from learned_imu.network.checkpoint import model_from_checkpoint
+    from learned_imu.network.inference import correct
+
+    model, _ = model_from_checkpoint("kitti")
+    with pytest.raises(InputError, match=r"sampled at 200.0 Hz, but the model was trained at 100.0 Hz"):
+        correct(model, simulate("car", duration_s=5.0, rate_hz=200.0))

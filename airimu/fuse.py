@@ -151,9 +151,8 @@ def run_fuse(request: FuseRequest) -> FuseDone:
         motion = motion_from_checkpoint(request.motion_checkpoint)[0]
     fused = None if fixes is None else fixes[:: request.gps_every]
     with folder_lock(request.out):  # one writer per folder from here on
-        if model is not None and fused is not None and not request.trust_model:
-            check_model_against_raw(sequence, model, fused, request.checkpoint)
-        result = fuse(sequence, fused, model, config, motion, request.start, request.outages)
+        start, outages = request.start, request.outages
+        result = fuse(sequence, fused, model, config, motion, start, outages, request.trust_model, request.checkpoint)
         summary, written = write_outputs(result, request.out, reference=fixes)
     return FuseDone(summary, written, len(result.gps.t))
 
@@ -182,6 +181,8 @@ def fuse(
     motion_model=None,
     start=None,
     outages: tuple[tuple[float, float], ...] = (),
+    trust_model: bool = False,
+    model_source: str | None = None,
 ) -> Fused:
     """Fuse ``sequence``'s IMU with ``gps`` (default: the sequence's own fixes; none at all: dead reckoning, which
     needs ``start``); see the module docstring.
@@ -198,6 +199,8 @@ def fuse(
         start: the state at the log's first IMU sample, a ``gtsam.NavState`` (pose world <- IMU, world velocity
             m/s), or ``"ground-truth"`` (the sequence's); default: aligned to the GPS track.
         outages: (start, duration) pairs, s from the log's first sample: the fixes inside are not fused.
+        trust_model: fuse with ``model`` even where its corrected samples fit the GPS track far worse than the raw
+            ones (``check_model_against_raw``, which names ``model_source``, e.g. the checkpoint, otherwise).
     """
     from learned_imu.network.inference import correct
 
@@ -224,6 +227,8 @@ def fuse(
         _check_coverage(sequence, fixes, where, need=1 if initial_state is not None else 2)
     if model is not None:
         correction = correct(model, sequence)
+        if fixes is not None and not trust_model:
+            check_model_against_raw(sequence, correction, fixes, model_source or "the model")
     else:
         import torch
 
@@ -430,18 +435,16 @@ def check_gps_units(
         )
 
 
-def check_model_against_raw(sequence: ImuSequence, model, fixes: GpsFixes, checkpoint) -> None:
-    """Refuse a model whose corrected samples leave ``MODEL_REFUSAL_RATIO`` times more of the GPS track's motion
-    unexplained than the raw samples do (``fusion.gps_units.track_misfit``, m/s): a model of another IMU, a broken
-    checkpoint, or one trained on data whose frames or units differ; ``airimu fuse --trust-model`` fuses it anyway.
-    A model that corrects anything fits at least as well as the raw samples."""
+def check_model_against_raw(sequence: ImuSequence, out: Correction, fixes: GpsFixes, checkpoint) -> None:
+    """Refuse a model whose corrected samples ``out`` leave ``MODEL_REFUSAL_RATIO`` times more of the GPS track's
+    motion unexplained than the raw samples do (``fusion.gps_units.track_misfit``, m/s): a model of another IMU, a
+    broken checkpoint, or one trained on data whose frames or units differ; ``airimu fuse --trust-model`` fuses it
+    anyway. A model that corrects anything fits at least as well as the raw samples."""
     from fusion.gps_units import track_misfit
-    from learned_imu.network.inference import correct
 
     raw = track_misfit(sequence, fixes)
     if raw is None:
         return
-    out = correct(model, sequence)
     corrected = dataclasses.replace(sequence, gyro=out.gyro.double().numpy(), acc=out.acc.double().numpy())
     with_model = track_misfit(corrected, fixes)
     if with_model is not None and with_model > MODEL_REFUSAL_RATIO * raw:

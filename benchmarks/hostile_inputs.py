@@ -109,6 +109,7 @@ def cases(sequence, folder: Path):
 def model_cases(sequence, fixes):
     import torch
 
+    from learned_imu.network.inference import correct
     from learned_imu.network.model import AirImuNet
 
     out = []
@@ -119,9 +120,9 @@ def model_cases(sequence, fixes):
             model.gyro_decoder[2].bias.fill_(offset_rad_s / (np.pi / 180.0))
         label = "untrained (control)" if offset_rad_s == 0 else f"gyro +{offset_rad_s:g} rad/s"
         cause = None if offset_rad_s == 0 else "far worse than the raw samples"
-        out.append(
-            ("model vs raw IMU", label, lambda m=model: check_model_against_raw(sequence, m, fixes, "m.pt"), cause)
-        )
+        corrected = correct(model, sequence)
+        run = lambda c=corrected: check_model_against_raw(sequence, c, fixes, "m.pt")  # noqa: E731
+        out.append(("model vs raw IMU", label, run, cause))
     return out
 
 

@@ -50,8 +50,3 @@ def slim(checkpoint, half: bool = True):
         for key, value in checkpoint.trainer["model"].items()
     }
     return dataclasses.replace(checkpoint, trainer={"model": weights})
-
-
-def float32(weights: dict) -> dict:
-    """Shipped float16 weights as float32 (``load_state_dict`` copies into the model's own dtype anyway)."""
-    return {key: (value.float() if value.is_floating_point() else value) for key, value in weights.items()}

@@ -433,16 +433,22 @@ def test_a_model_that_fits_the_gps_far_worse_than_the_raw_imu_is_refused(tmp_pat
 
     from airimu.fuse import FuseRequest, check_model_against_raw, run_fuse
     from learned_imu.datasets.simulator import simulate
+    from learned_imu.network.inference import correct
     from learned_imu.network.model import AirImuNet
 
     seq = simulate("car", duration_s=120.0, grade="industrial", seed=4, gps_rate_hz=1.0, gps_sigma_m=0.3)
     torch.manual_seed(0)
     model = AirImuNet().eval()
-    check_model_against_raw(seq, model, seq.gps, "fresh.pt")  # an untrained model corrects nearly nothing: accepted
+    # an untrained model corrects nearly nothing: accepted
+    check_model_against_raw(seq, correct(model, seq), seq.gps, "fresh.pt")
     with torch.no_grad():
         model.gyro_decoder[2].bias.fill_(3.0)  # 0.052 rad/s added to every axis: misfit 3.97 m/s against 0.72 raw
     with pytest.raises(DataError, match=r"broken\.pt.*far worse than the raw samples.*--trust-model"):
-        check_model_against_raw(seq, model, seq.gps, "broken.pt")
+        check_model_against_raw(seq, correct(model, seq), seq.gps, "broken.pt")
+    from airimu.fuse import fuse
+
+    with pytest.raises(DataError, match=r"the model: field 'model'.*far worse"):  # the library call checks it too
+        fuse(seq, model=model)
     import learned_imu.network.checkpoint as checkpoint_module
 
     monkeypatch.setattr(checkpoint_module, "model_from_checkpoint", lambda path: (model, None))

@@ -225,6 +225,7 @@ def fuse(
         sequence = fixes_on_samples(sequence)  # a keyframe at every fix: only fixes on an IMU sample
         fixes = sequence.gps
         _check_coverage(sequence, fixes, where, need=1 if initial_state is not None else 2)
+        check_imu_units(sequence, fixes, where)
     if model is not None:
         correction = correct(model, sequence)
         if fixes is not None and not trust_model:
@@ -433,6 +434,55 @@ def check_gps_units(
             f"unexplained) than with {unit} ({other:.3g} m/s): {unit}? The {columns} columns are read as "
             + ("degrees" if columns == "lat/lon" else "m"),
         )
+
+
+GYRO_CHECK_MAX_SPACING_S = 2.0  # check_imu_units needs fixes at least this often (median spacing)
+GYRO_READINGS = {  # what the gyro as read may really be -> (factor to rad/s, the fix)
+    "deg/s": (np.pi / 180.0, "read it with --reader-option gyro_unit=deg/s"),
+    "mrad/s": (1e-3, "divide the gyro columns by 1000 (rad/s expected)"),
+    "rad/s converted as if deg/s": (180.0 / np.pi, "read it without gyro_unit=deg/s (it is already rad/s)"),
+}
+
+
+def check_imu_units(sequence: ImuSequence, fixes: GpsFixes, where: object) -> None:
+    """Refuse an IMU log whose gyro, read in another unit (``GYRO_READINGS``), lets the IMU explain the GPS track
+    ``UNIT_REFUSAL_RATIO`` times better than as read (``fusion.gps_units.track_misfit``: the gyro's rotations
+    carry the accelerometer into the world frame, so a gyro 57x off turns the IMU's motion away from the track's).
+    The physical check that needs no ground truth and no rotation large enough for the reader's magnitude check (a
+    car's gyro in deg/s reads as plausible rad/s); a ``DataError`` naming the file, the gyro and the fix. Only with
+    fixes at least every ``GYRO_CHECK_MAX_SPACING_S`` (sparser fixes make stretches over which a raw gyro's bias
+    turns the track by tens of degrees). Readings that fit alike (deg/s and mrad/s: both little rotation) are
+    named together."""
+    from fusion.gps_units import track_misfit
+
+    inside = fixes.t[(fixes.t >= sequence.t[0]) & (fixes.t <= sequence.t[-1])]
+    if len(inside) < 3 or float(np.median(np.diff(inside))) > GYRO_CHECK_MAX_SPACING_S:
+        return
+    # the gyro's median taken out first: a raw gyro's bias turns a stretch of the track by degrees (EuRoC's raw IMU
+    # as read: 4.1-4.8 m/s against 1.3-1.6 with no rotation at all; without the median 1.0-1.7)
+    steady = dataclasses.replace(sequence, gyro=sequence.gyro - np.median(sequence.gyro, axis=0))
+    as_read = track_misfit(steady, fixes)
+    if as_read is None:
+        return
+    misfits = {}
+    for unit, (factor, _) in GYRO_READINGS.items():
+        other = track_misfit(dataclasses.replace(steady, gyro=steady.gyro * factor), fixes)
+        if other is not None:
+            misfits[unit] = other
+    if not misfits:
+        return
+    best = min(misfits.values())
+    if best * UNIT_REFUSAL_RATIO >= as_read:
+        return
+    alike = [unit for unit, misfit in sorted(misfits.items(), key=lambda item: item[1]) if misfit < 1.5 * best]
+    fixes_text = "; or ".join(GYRO_READINGS[unit][1] for unit in alike)
+    raise DataError(
+        where,
+        "gyro",
+        f"the IMU explains the GPS track far worse with the gyro as read ({as_read:.3g} m/s of its velocity "
+        f"changes unexplained) than as {' or '.join(alike)} ({best:.3g} m/s): gyro {' or '.join(alike)}? "
+        f"{fixes_text[0].upper()}{fixes_text[1:]}",
+    )
 
 
 def check_model_against_raw(sequence: ImuSequence, out: Correction, fixes: GpsFixes, checkpoint) -> None:

@@ -8,19 +8,21 @@ warned with the right cause, accepted and right (the controls), a wrong-cause me
 GPS: the drive's ground truth at 1 Hz with 0.5 m noise (as a user's CSV would carry it), run through the checks that
 ``airimu fuse`` runs on a GPS file before fusing (``check_gps_units``, ``check_gps_times``, ``check_gps_clock``,
 ``read_gps_csv``'s sigma check); models: ``check_model_against_raw`` with an untrained AirIMU network whose gyro
-output is offset.
+output is offset; the gyro's unit: ``check_imu_units`` (the track explained by the gyro as read and in other units,
+no ground truth).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 from collections import Counter
 from pathlib import Path
 
 import numpy as np
 
-from airimu.fuse import check_gps_clock, check_gps_times, check_gps_units, check_model_against_raw
+from airimu.fuse import check_gps_clock, check_gps_times, check_gps_units, check_imu_units, check_model_against_raw
 from airimu_core.errors import AirImuError
 from airimu_core.sequence import GpsFixes
 from learned_imu.datasets._assemble import ReadChecks
@@ -103,6 +105,15 @@ def cases(sequence, folder: Path):
         path = gps_file(folder, f"s{unit}", t, pos, value)
         out.append(("GPS sigma column", unit, lambda p=path: read_gps_csv(p), "in cm or mm"))
     out += model_cases(sequence, fixes)
+    blind = dataclasses.replace(sequence, gt=None, gps=None)  # the gyro check needs no ground truth
+    for label, scale, cause in (
+        ("rad/s (control)", 1.0, None),
+        ("deg/s", 180.0 / np.pi, "deg/s"),
+        ("mrad/s", 1000.0, "mrad/s"),
+        ("rad/s read as deg/s", np.pi / 180.0, "converted as if deg/s"),
+    ):
+        wrong = dataclasses.replace(blind, gyro=blind.gyro * scale)
+        out.append(("gyro unit (GPS track)", label, lambda w=wrong: check_imu_units(w, fixes, "imu.csv"), cause))
     return out
 
 

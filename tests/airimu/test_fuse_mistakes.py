@@ -493,3 +493,37 @@ def test_a_gps_sigma_column_in_mm_is_refused_naming_the_file_and_column(drive, t
                 read_gps_csv(path)
         else:
             np.testing.assert_allclose(read_gps_csv(path).sigma, sigma)
+
+
+@pytest.mark.parametrize(
+    ("scale", "named"), [(180.0 / np.pi, "deg/s"), (1000.0, "mrad/s"), (1.0, None)]
+)  # a car's gyro in deg/s reads as plausible rad/s: only the GPS track can tell
+def test_a_gyro_in_another_unit_is_refused_by_the_gps_track_without_ground_truth(drive, scale, named):
+    from airimu.experiments.pgo import gps_for
+    from airimu.fuse import check_imu_units, fuse
+
+    part = drive.between(drive.t[0], drive.t[0] + 300.0)
+    fixes = gps_for(part, 1.0, 0.5, seed=0, source="simulated")[0]
+    blind = dataclasses.replace(part, gyro=part.gyro * scale, gt=None, gps=None)
+    if named is None:
+        check_imu_units(blind, fixes, "drive.csv")  # the right unit: accepted
+        return
+    with pytest.raises(DataError) as refused:
+        fuse(blind, fixes, None, FuseConfig(keyframe_s=1.0))
+    message = str(refused.value)
+    assert "field 'gyro'" in message and f"gyro {named}" in message.split("? ")[0] + "?"
+    assert "gyro_unit=deg/s" in message if named == "deg/s" else "by 1000" in message
+
+
+def test_the_gyro_unit_check_is_quiet_on_euroc_and_skips_sparse_fixes(shared_data):
+    """EuRoC's raw gyro (biased: as read it explains the track worse than no rotation at all, before its median is
+    taken out) is accepted with 1-Hz fixes; with a fix every 10 s the check does not run."""
+    from airimu.experiments.pgo import gps_for
+    from airimu.fuse import check_imu_units
+    from learned_imu.datasets import read_sequence
+
+    for name in ("MH_04_difficult", "V1_03_difficult", "V2_02_medium"):
+        seq = read_sequence("euroc", shared_data / "euroc" / name)
+        check_imu_units(seq, gps_for(seq, 1.0, 0.5, seed=0, source="simulated")[0], name)
+        sparse = gps_for(seq, 0.1, 0.5, seed=0, source="simulated")[0]
+        check_imu_units(dataclasses.replace(seq, gyro=seq.gyro * 1000.0), sparse, name)  # not checked: no refusal

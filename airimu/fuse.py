@@ -38,6 +38,7 @@ from factors.noise import noise_mismatch
 from fusion.config import FuseConfig
 from fusion.graph import Solution, Trajectory
 from fusion.solve import solve_export
+from fusion.still import StillStart, still_start
 from learned_imu.datasets.gps import gps_file_layout, read_gps_csv
 from learned_imu.export import (
     check_keyframe_interval,
@@ -85,6 +86,10 @@ class FusedSummary:
     # ground truth where there is one: attitude error, deg, split into roll/pitch (tilt: gravity's direction) and
     # yaw (heading); None without ground truth at the first keyframe
     initial_attitude_error_deg: dict | None = None
+    # the still start the raw gyro's bias came from (fusion.still): duration_s, gyro_bias_rad_s and its sigma,
+    # tilt_sigma_deg, and against the ground truth where there is one the tilt of its gravity (tilt_error_deg);
+    # None without one (or with a model, which corrects the bias itself)
+    still_start: dict | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -171,6 +176,7 @@ class Fused:
     outages: tuple[tuple[float, float], ...] = ()  # (start, duration) s from the first sample: no fix fused
     # per outage: (time s, position (3,) m) at its end as the log up to then solves (no later fix or velocity)
     outage_ends: tuple = ()
+    still: StillStart | None = None  # the still start whose gyro bias was taken out (raw IMU only)
 
 
 def fuse(
@@ -226,6 +232,7 @@ def fuse(
         fixes = sequence.gps
         _check_coverage(sequence, fixes, where, need=1 if initial_state is not None else 2)
         check_imu_units(sequence, fixes, where)
+    still = None
     if model is not None:
         correction = correct(model, sequence)
         if fixes is not None and not trust_model:
@@ -237,9 +244,23 @@ def fuse(
             _check_noise(sequence, config.noise_density)
         gyro, acc = torch.as_tensor(sequence.gyro), torch.as_tensor(sequence.acc)
         zero = torch.zeros_like(gyro)
+        d_gyro = zero
+        start_velocity = None if initial_state is None else np.asarray(initial_state.velocity())
+        if config.still_start:
+            still = still_start(sequence.t, sequence.gyro, sequence.acc, fixes, start_velocity)
+        if still is not None:  # the raw gyro's bias, measured before the platform moved, taken out
+            d_gyro = zero - torch.as_tensor(still.gyro_bias)
+            log.info(
+                "%s: still for the first %.1f s: gyro bias %s rad/s (sigma %s) taken out",
+                where,
+                still.duration_s,
+                np.array2string(still.gyro_bias, precision=5),
+                np.array2string(still.gyro_bias_sigma, precision=1),
+            )
         gyro_cov, acc_cov = (torch.full_like(gyro, s**2) for s in config.noise_density)
-        correction = Correction(gyro, acc, zero, zero, gyro_cov, acc_cov)
+        correction = Correction(gyro + d_gyro, acc, d_gyro, zero, gyro_cov, acc_cov)
     result = _solve(sequence, fixes, correction, config, motion_model, initial_state)
+    result = dataclasses.replace(result, still=still)
     if model is None and not config.noise_is_default:
         _blame_given_noise(sequence, config.noise_density, result.residuals)
     ends = []
@@ -623,9 +644,23 @@ def write_outputs(result: Fused, folder: Path, reference: GpsFixes | None = None
         ],
         result.residuals["motion"].factors if "motion" in result.residuals else 0,
         initial_attitude_error(result),
+        still_summary(result),
     )
     written.append(write_json_atomic(folder / "summary.json", dataclasses.asdict(summary)))
     return summary, written
+
+
+def still_summary(result: Fused) -> dict | None:
+    """``FusedSummary.still_start``: the still start and, with ground truth, the tilt of its gravity, deg."""
+    still = result.still
+    if still is None:
+        return None
+    out = still.to_json_dict()
+    gt = result.sequence.gt
+    if gt is not None and gt.valid[0]:
+        cos = float(np.clip(np.dot(still.up, gt.rot[0][2]), -1.0, 1.0))
+        out["tilt_error_deg"] = float(np.degrees(np.arccos(cos)))
+    return out
 
 
 def initial_attitude_error(result: Fused) -> dict | None:

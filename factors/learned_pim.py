@@ -36,7 +36,7 @@ MIN_SAMPLES_FOR_GRAVITY_CHECK = 10
 # a constant noise above this (sigma 1 rad/s/sqrt(Hz), 10 m/s^2/sqrt(Hz)) is no IMU's: another unit, or sigma^4
 MAX_COV = {"gyro_cov": 1.0, "acc_cov": 100.0}
 # a median sample period above this is no IMU's (seconds given in another unit, or a total duration as dt)
-MAX_MEDIAN_DT_S = 1.0
+MAX_MEDIAN_DT_S = 0.11  # s: an IMU slower than ~9 Hz is none (KITTI's synced OXTS, the slowest here: 0.1 s)
 GRAVITY_RANGE = (9.7, 9.9)  # m/s^2: Earth's gravity from the equator to the poles, sea level to 10 km
 log = logging.getLogger(__name__)
 
@@ -146,9 +146,11 @@ def _checked(gyro, acc, dt, gyro_cov, acc_cov):
     if not np.all(np.isfinite(dt)) or np.any(dt <= 0):
         raise ValueError("learned_pim: dt must be positive and finite for every sample")
     if float(np.median(dt)) > MAX_MEDIAN_DT_S:
+        step = float(np.median(dt))
         raise ValueError(
-            f"learned_pim: the median dt is {float(np.median(dt)):.3g} s, slower than any IMU (1 Hz): dt is each "
-            "sample's own step, t[i+1] - t[i], in seconds"
+            f"learned_pim: the median dt is {step:.3g} s ({n} samples: {step * n:.3g} s preintegrated), slower than "
+            f"any IMU ({1 / MAX_MEDIAN_DT_S:.0f} Hz): is it the keyframe interval? dt is each sample's own step, "
+            "t[i+1] - t[i], in seconds"
         )
     force = float(np.median(np.linalg.norm(acc, axis=1)))
     if n >= MIN_SAMPLES_FOR_GRAVITY_CHECK and force < MIN_MEDIAN_SPECIFIC_FORCE:

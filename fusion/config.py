@@ -179,6 +179,8 @@ class FuseConfig:
     - ``keyframe_s``: a keyframe at every fused fix (each fix constrains the state at its own time), and one every
       this many seconds between them; null: the fixes' alone (batch only).
     - ``estimate_bias``: a bias state per keyframe, with the sigmas and factor of ``bias``.
+    - ``still_start``: without a model, a still start (``fusion.still``: the IMU quiet and the GPS or the given
+      start velocity still) gives the raw gyro's bias, taken out of every sample.
     - ``graph``: robust loss, lever arm, priors and the solver; ``online``: the smoother of ``OnlineFusion``;
       ``motion``: the learned motion factors, used when a motion model is given (``MotionSettings``).
     """
@@ -188,6 +190,7 @@ class FuseConfig:
     gps_sigma_m: float = GPS_SIGMA_UNKNOWN_M
     keyframe_s: float | None = None
     estimate_bias: bool = False
+    still_start: bool = True
     bias: BiasStates = field(default_factory=BiasStates)
     graph: FusionSettings = field(default_factory=FusionSettings)
     online: OnlineSettings = field(default_factory=OnlineSettings)
@@ -200,6 +203,8 @@ class FuseConfig:
             raise ConfigError(f"gps_sigma_m must be a positive sigma (m), got {self.gps_sigma_m!r}")
         if self.keyframe_s is not None and not (math.isfinite(self.keyframe_s) and self.keyframe_s > 0):
             raise ConfigError(f"keyframe_s must be a positive interval (s) or null, got {self.keyframe_s!r}")
+        if not isinstance(self.still_start, bool):
+            raise ConfigError(f"still_start must be true or false, got {self.still_start!r}")
 
     @property
     def noise_density(self) -> tuple[float, float]:

@@ -40,6 +40,10 @@ def test_a_time_step_slower_than_any_imu_is_refused(kitti):
     gyro, acc, _ = kitti
     with pytest.raises(ValueError, match=r"median dt is 10 s.*t\[i\+1\] - t\[i\]"):
         learned_pim(gyro, acc, 10.0, 1e-8, 1e-4, 9.8)
+    # the keyframe interval (0.5 s) given for 100-Hz samples: named as such, not as a noise given as a variance
+    with pytest.raises(ValueError, match=r"median dt is 0.5 s .* is it the keyframe interval"):
+        learned_pim(gyro, acc, 0.5, 1e-8, 1e-4, 9.8)
+    learned_pim(gyro[::10], acc[::10], 0.1, 1e-8, 1e-4, 9.8)  # a 10-Hz IMU (KITTI's synced OXTS): accepted
     gaps = np.full(len(gyro), 0.01)
     gaps[100] = 5.0  # one real gap among 100 Hz samples: accepted
     learned_pim(gyro, acc, gaps, 1e-8, 1e-4, 9.8)

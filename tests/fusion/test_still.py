@@ -1,0 +1,80 @@
+"""``fusion.still``: a still start gives the raw gyro's bias and roll / pitch, only when the motion confirms it;
+``fuse`` takes the bias out (real data: a BROAD trial)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from airimu_core.sequence import GpsFixes
+from fusion.config import FuseConfig
+from fusion.still import still_start
+
+BIAS = np.array([0.004, -0.002, 0.006])  # rad/s
+
+
+def _log(still_s: float = 6.0, seconds: float = 10.0, rate: float = 100.0):
+    """A still start of ``still_s`` (gyro = BIAS + noise, acc = gravity + noise, tilted 3 degrees about x), then a
+    turn at 0.5 rad/s while accelerating at 1 m/s^2."""
+    rng = np.random.default_rng(0)
+    t = np.arange(0.0, seconds, 1.0 / rate)
+    tilt = np.radians(3.0)
+    up = np.array([0.0, np.sin(tilt), np.cos(tilt)])
+    gyro = BIAS + rng.normal(0.0, 2e-3, (len(t), 3))
+    acc = 9.81 * up + rng.normal(0.0, 0.02, (len(t), 3))
+    moving = t >= still_s
+    gyro[moving, 2] += 0.5
+    acc[moving, 0] += 1.0
+    return t, gyro, acc, up
+
+
+def test_a_still_start_gives_the_gyro_bias_and_gravity_with_their_sigmas():
+    t, gyro, acc, up = _log()
+    still = still_start(t, gyro, acc, start_velocity=np.zeros(3))
+    assert still is not None and 5.4 <= still.duration_s <= 6.0
+    assert np.all(np.abs(still.gyro_bias - BIAS) < 4.0 * still.gyro_bias_sigma + 1e-4)
+    assert np.all(still.gyro_bias_sigma < 5e-4)
+    assert np.degrees(np.arccos(np.clip(still.up @ up, -1.0, 1.0))) < 3.0 * np.degrees(still.tilt_sigma_rad)
+
+
+def test_a_still_start_needs_the_motion_to_confirm_it():
+    t, gyro, acc, _ = _log()
+    assert still_start(t, gyro, acc) is None  # the IMU alone cannot tell still from cruising
+    assert still_start(t, gyro, acc, start_velocity=np.array([5.0, 0.0, 0.0])) is None
+    still_fixes = GpsFixes(np.arange(0.0, 10.0), np.zeros((10, 3)), np.full((10, 3), 0.3))
+    assert still_start(t, gyro, acc, fixes=still_fixes).duration_s >= 5.4
+    moved = np.zeros((10, 3))
+    moved[3:, 0] = 5.0 * np.arange(1, 8)  # the GPS moves from 3 s on: the span ends at the fix before
+    cut = still_start(t, gyro, acc, fixes=dataclasses.replace(still_fixes, pos=moved))
+    assert cut is not None and 2.0 <= cut.duration_s <= 2.01
+    short = still_start(*_log(still_s=1.0)[:3], start_velocity=np.zeros(3))
+    assert short is None  # under MIN_S
+
+
+def test_fuse_takes_a_still_starts_gyro_bias_out_on_a_real_broad_trial(shared_data):
+    """BROAD trial 03 starts still for ~35 s with a gyro bias of ~9 mrad/s: dead reckoning from its ground-truth
+    start, the keyframe attitudes end far closer to the truth with the bias taken out than without."""
+    from scipy.spatial.transform import Rotation
+
+    from airimu.fuse import fuse, still_summary
+    from learned_imu.datasets import read_sequence
+
+    seq = read_sequence("broad", shared_data / "broad" / "03_undisturbed_slow_rotation_C.mat")
+    seq = seq.between(seq.t[0], seq.t[0] + 80.0)
+    errors = {}
+    for on in (True, False):
+        config = FuseConfig(keyframe_s=1.0, still_start=on)
+        result = fuse(seq, None, None, config, start="ground-truth")
+        traj = result.solution.trajectory
+        at = np.searchsorted(seq.t, traj.t)
+        relative = np.einsum("nji,njk->nik", seq.gt.rot[at], traj.rot)
+        errors[on] = float(np.degrees(Rotation.from_matrix(relative).magnitude()).max())
+        if on:
+            assert result.still is not None and result.still.duration_s > 30.0
+            assert np.abs(result.still.gyro_bias * 1e3 - [8.72, -3.26, -4.35]).max() < 0.1  # mrad/s
+            summary = still_summary(result)
+            assert summary["tilt_error_deg"] < 0.3 and summary["tilt_sigma_deg"] >= 0.29
+        else:
+            assert result.still is None
+    assert errors[True] < 0.2 * errors[False], errors

@@ -38,9 +38,7 @@ def attitude_errors(seq, result) -> tuple[float, float]:
 
 
 def main() -> None:
-    head = (
-        "| BROAD trial | still s | gyro bias mrad/s (sigma) | tilt error deg (sigma) | attitude RMS / end, kept |"
-    )
+    head = "| BROAD trial | still s | gyro bias mrad/s (sigma) | tilt error deg (sigma) | attitude RMS / end, kept |"
     print(head + " taken out | trial s |")
     print("|---|---|---|---|---|---|---|")
     for path in sorted(glob.glob(str(DATA / "broad" / "*.mat"))):

@@ -145,8 +145,8 @@ def _checked(gyro, acc, dt, gyro_cov, acc_cov):
     dt = np.broadcast_to(real_array(dt, "learned_pim: dt"), (n,))
     if not np.all(np.isfinite(dt)) or np.any(dt <= 0):
         raise ValueError("learned_pim: dt must be positive and finite for every sample")
-    if float(np.median(dt)) > MAX_MEDIAN_DT_S:
-        step = float(np.median(dt))
+    step = float(np.median(dt))
+    if step > MAX_MEDIAN_DT_S:
         raise ValueError(
             f"learned_pim: the median dt is {step:.3g} s ({n} samples: {step * n:.3g} s preintegrated), slower than "
             f"any IMU ({1 / MAX_MEDIAN_DT_S:.0f} Hz): is it the keyframe interval? dt is each sample's own step, "

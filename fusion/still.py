@@ -1,12 +1,13 @@
 """A still start: the gyro's bias from its mean rate and roll / pitch from gravity, before the platform moves.
 
 From the first sample on, consecutive ``WINDOW_S`` windows count as still while each window's rate stays within
-``GYRO_RIPPLE_RAD_S`` of its own mean, its mean within ``GYRO_DRIFT_RAD_S`` of the first window's, its mean specific
-force within ``ACC_DRIFT_M_S2`` of the first window's and the spread of ``|acc|`` under ``ACC_RIPPLE_M_S2`` (a
-still IMU measures one constant rate, its bias, and one constant force, gravity). The IMU alone cannot tell still
-from cruising at a constant velocity, so a still start also needs the motion to say so: the GPS fixes inside the
-span within ``GPS_STILL_M`` (plus three sigmas) of the first, or a given start velocity under ``START_STILL_M_S``;
-without either there is none (never read from ground truth unless the start was asked for from it).
+``GYRO_RIPPLE_RAD_S`` of its own mean, its mean within ``GYRO_DRIFT_RAD_S`` of the first window's and under
+``GYRO_BIAS_MAX_RAD_S``, its mean specific force within ``ACC_DRIFT_M_S2`` of the first window's and the spread of
+``|acc|`` under ``ACC_RIPPLE_M_S2`` (a still IMU measures one constant rate, its bias, and one constant force,
+gravity). The IMU alone cannot tell still from cruising at a constant velocity, so a still start also needs the
+motion to say so: the GPS fixes inside the span within ``GPS_STILL_M`` (plus three sigmas) of the first, or a given
+start velocity under ``START_STILL_M_S``; without either there is none (never read from ground truth unless the start
+was asked for from it).
 
 Conventions: gyro rad/s and acc m/s^2 in the IMU frame; ``up`` the world's up axis seen from the body (``R^T e_z``,
 from the mean specific force); sigmas are standard deviations (sigma, not sigma^2) of the means, from the scatter of
@@ -26,6 +27,7 @@ WINDOW_S = 0.5
 MIN_S = 2.0  # shorter still spans are not used
 GYRO_RIPPLE_RAD_S = 0.05
 GYRO_DRIFT_RAD_S = 0.01
+GYRO_BIAS_MAX_RAD_S = 0.1  # a still gyro reads its bias: above 5.7 deg/s it is turning (EuRoC's raw: 0.08 at most)
 ACC_RIPPLE_M_S2 = 0.15
 ACC_DRIFT_M_S2 = 0.1
 GPS_STILL_M = 0.5
@@ -75,9 +77,12 @@ def still_start(
         (np.abs(g - g_mean[:, None]).max(axis=(1, 2)) < GYRO_RIPPLE_RAD_S)
         & (np.linalg.norm(a, axis=2).std(axis=1) < ACC_RIPPLE_M_S2)
         & (np.abs(g_mean - g_mean[0]).max(axis=1) < GYRO_DRIFT_RAD_S)
+        & (np.linalg.norm(g_mean, axis=1) < GYRO_BIAS_MAX_RAD_S)
         & (np.abs(a_mean - a_mean[0]).max(axis=1) < ACC_DRIFT_M_S2)
     )
     count = int(np.argmin(quiet)) if not quiet.all() else windows
+    if count * width < MIN_S * rate:  # the IMU was not quiet for long enough: nothing for the motion to confirm
+        return None
     samples = _confirmed_samples(t, count * width, fixes, start_velocity)
     if samples < MIN_S * rate:
         return None

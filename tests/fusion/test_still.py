@@ -50,6 +50,10 @@ def test_a_still_start_needs_the_motion_to_confirm_it():
     assert cut is not None and 2.0 <= cut.duration_s <= 2.01
     short = still_start(*_log(still_s=1.0)[:3], start_velocity=np.zeros(3))
     assert short is None  # under MIN_S
+    # moving from the first sample while the fixes stand still up to 3 s: the fixes confirm nothing the IMU did not
+    # show (the span is never taken from the GPS alone)
+    t, gyro, acc, _ = _log(still_s=0.0)
+    assert still_start(t, gyro, acc, fixes=dataclasses.replace(still_fixes, pos=moved)) is None
 
 
 def test_fuse_takes_a_still_starts_gyro_bias_out_on_a_real_broad_trial(shared_data):

@@ -46,8 +46,10 @@ import gtsam
 import numpy as np
 
 from airimu_core.errors import AirImuError, InputError, real_array
+from airimu_core.sequence import GpsFixes
 from factors import GpsFactor, MotionFactor, gps_noise, learned_pim
 from factors.noise import noise_mismatch
+from fusion.align import MOVE_M, Aligner, Alignment
 from fusion.config import FuseConfig
 from fusion.graph import Trajectory
 from fusion.initial import first_state, priors_on_first
@@ -100,7 +102,10 @@ class OnlineFusion:
         model: an ``AirImuNet`` in eval mode, or None for the raw samples with the config's noise densities.
         gravity: (3,) gravity vector in the world frame, m/s^2.
         initial_state: ``gtsam.NavState`` (pose world <- IMU, world velocity m/s) at the first IMU sample: the prior's
-            mean.
+            mean; or None: found from the stream (``fusion.align``: roll and pitch from gravity, the raw gyro's bias
+            from a still start, heading by search once the GPS track shows the platform accelerating), never from
+            ground truth. Until then nothing enters the graph (``current_state`` says what it waits for); then
+            everything received so far is replayed, and ``alignment`` holds what was found.
         config: ``fusion.config.FuseConfig``, the batch fusion's settings (default ``FuseConfig()``, as
             ``configs/fuse.yaml``): ``online`` (keyframe interval, smoother, lag, ISAM2's relinearisation threshold,
             the bias re-linearisation tolerance), the noise densities without a model (densities other than the
@@ -136,7 +141,13 @@ class OnlineFusion:
         self._motion_outputs = 0  # outputs of the motion model so far: output j ends at sample (j + 1) block - 1
         self._last_motion: tuple[int, np.ndarray, np.ndarray] | None = None  # (end sample, v_body, variance)
         self._gravity = _vector("gravity", gravity)
-        self._first = first_state(initial_state, "OnlineFusion")
+        self._first = None if initial_state is None else first_state(initial_state, "OnlineFusion")
+        self.alignment: Alignment | None = None  # the first state found from the stream (initial_state=None)
+        self._pending_t, self._pending_raw = np.zeros(0), np.zeros((0, 6))  # samples before the alignment
+        self._pending_fixes: list[tuple[float, np.ndarray, np.ndarray]] = []  # fixes before the alignment
+        self._align_tried = 0  # fixes at the last alignment attempt
+        self._aligner = Aligner(self._gravity, config.noise_density) if initial_state is None else None
+        self._gyro_offset = np.zeros(3)  # the still start's gyro bias, taken out of the raw samples (no model)
         self._prior_sigmas = (graph.prior_rot_sigma_rad, graph.prior_pos_sigma_m, graph.prior_vel_sigma_m_s)
         self._density = np.repeat(np.square(config.noise_density), 3)  # [gyro x3, acc x3], sigma^2
         self._gps_robust, self._lever_arm_m = graph.gps_robust, _vector("lever_arm_m", graph.lever_arm_m)
@@ -194,6 +205,8 @@ class OnlineFusion:
         """Add one sample (``t`` float, ``gyro``/``acc`` (3,)) or a block (``t`` (M,), (M, 3)): rad/s and m/s^2,
         raw, IMU frame, times strictly increasing. Returns the number of keyframes this added to the graph."""
         t, raw = self._check_samples(t, gyro, acc)
+        if self._first is None:
+            return self._wait_for_alignment(t, raw)
         first = self._base + len(self._t)  # sample index of t[0]
         self._t = np.concatenate([self._t, t])
         for i, ti in enumerate(t):
@@ -215,6 +228,7 @@ class OnlineFusion:
         if self._motion is not None:
             self._motion_raw = np.concatenate([self._motion_raw, raw])
         if self._model is None:
+            raw = raw - np.concatenate([self._gyro_offset, np.zeros(3)])
             self._samples = np.concatenate([self._samples, np.hstack([raw, np.broadcast_to(self._density, raw.shape)])])
         else:
             self._raw = np.concatenate([self._raw, raw])
@@ -233,6 +247,12 @@ class OnlineFusion:
         t, sigma = float(t), np.broadcast_to(sigma, (3,))
         if not np.isfinite(t) or not np.all(np.isfinite(sigma)) or np.any(sigma <= 0):
             raise InputError(f"add_gps: need a finite time and positive, finite sigma_m, got t={t}, sigma_m={sigma_m}")
+        if self._first is None:  # no start yet: kept for the alignment, then replayed
+            if not len(self._pending_t) or t < self._pending_t[0]:
+                first = f"{self._pending_t[0]} s" if len(self._pending_t) else "none yet"
+                raise InputError(f"add_gps: fix at t={t} s precedes the first IMU sample ({first})")
+            bisect.insort(self._pending_fixes, (t, pos, np.array(sigma)), key=lambda f: f[0])
+            return False
         if not self._kf_t or t < self._kf_t[0]:
             first = f"{self._kf_t[0]} s" if self._kf_t else "none yet"
             raise InputError(f"add_gps: fix at t={t} s precedes the first IMU sample ({first})")
@@ -247,6 +267,17 @@ class OnlineFusion:
         ``correct_sequence`` does), completed keyframes are added, and waiting fixes within half an interval of the
         last keyframe attach to it; later ones are not used, logged as a warning and kept in ``unused_fixes``
         (their times, s). Further samples are refused. Returns the number of keyframes added."""
+        if self._first is None and not self._flushed:
+            self._align(force=True)
+            if self._first is None:
+                self._flushed = True
+                self.unused_fixes = tuple(f[0] for f in self._pending_fixes)
+                log.warning(
+                    "OnlineFusion.flush: no start was found (initial_state=None needs two GPS fixes within the IMU "
+                    "samples; %d came): nothing was fused",
+                    len(self._pending_fixes),
+                )
+                return 0
         if self._model is not None and not self._flushed:
             self._correct(flush=True)  # also the samples the model holds back for an incomplete block
         self._flushed = True
@@ -274,6 +305,12 @@ class OnlineFusion:
     def current_state(self) -> OnlineState:
         """The latest keyframe's estimate and marginal covariances (see ``OnlineState``)."""
         if not self._in_graph:
+            if self._first is None and len(self._pending_t):
+                raise AirImuError(
+                    f"OnlineFusion.current_state: no start yet (initial_state=None): waiting for the GPS track to move "
+                    f"{MOVE_M:g} m with a decisive heading ({len(self._pending_fixes)} fixes, "
+                    f"{self._pending_t[-1] - self._pending_t[0]:.1f} s of IMU so far)"
+                )
             raise AirImuError("OnlineFusion.current_state: no IMU sample yet")
         k = self._in_graph - 1
         pose, vel = self._estimate(k)
@@ -292,11 +329,62 @@ class OnlineFusion:
             vel=np.array([v for _, v in states]).reshape(-1, 3),
         )
 
+    def _wait_for_alignment(self, t: np.ndarray, raw: np.ndarray) -> int:
+        """Without a first state: keep the samples; once a fix has come since the last try, try the alignment
+        (``fusion.align``). Returns the keyframes the replay added."""
+        self._pending_t = np.concatenate([self._pending_t, t])
+        self._pending_raw = np.concatenate([self._pending_raw, raw])
+        if len(self._pending_fixes) > self._align_tried and self._pending_fixes[-1][0] <= self._pending_t[-1]:
+            return self._align(force=False)
+        return 0
+
+    def _align(self, force: bool) -> int:
+        """The first state from the samples and fixes so far (``fusion.align.align``); found, everything so far is
+        replayed through the graph (each fix before the samples after it). Returns the keyframes added."""
+        if len(self._pending_t) < 2:
+            return 0
+        self._align_tried = len(self._pending_fixes)
+        fixes = GpsFixes(
+            np.array([f[0] for f in self._pending_fixes]),
+            np.array([f[1] for f in self._pending_fixes]).reshape(-1, 3),
+            np.array([f[2] for f in self._pending_fixes]).reshape(-1, 3),
+        )
+        raw = self._pending_raw
+        found = self._aligner.update(self._pending_t, raw[:, :3], raw[:, 3:], fixes, force)
+        if found is None:
+            return 0
+        if found.forced:
+            log.warning(
+                "OnlineFusion: first state taken after %.1f s of IMU with a heading sigma of %.1f deg and a tilt sigma "
+                "of %.1f deg: the platform had not accelerated (or turned) enough to show them; the first minutes "
+                "may carry that error",
+                found.waited_s,
+                np.degrees(found.yaw_sigma_rad),
+                np.degrees(found.tilt_sigma_rad),
+            )
+        self.alignment = found
+        self._first = (found.state.pose(), np.asarray(found.state.velocity()))
+        if self._model is None and found.still is not None:
+            self._gyro_offset = found.still.gyro_bias
+        t, raw, fixes = self._pending_t, self._pending_raw, self._pending_fixes
+        self._pending_t, self._pending_raw, self._pending_fixes = np.zeros(0), np.zeros((0, 6)), []
+        added, start = 0, 0
+        for fix_t, pos, sigma in fixes:
+            end = max(int(np.searchsorted(t, fix_t, side="right")), 1)
+            if end > start:
+                added += self.add_imu(t[start:end], raw[start:end, :3], raw[start:end, 3:])
+                start = end
+            self.add_gps(fix_t, pos, sigma)
+        if start < len(t):
+            added += self.add_imu(t[start:], raw[start:, :3], raw[start:, 3:])
+        return added
+
     def _start(self) -> None:
-        """Keyframe 0 at the first sample: priors on its state."""
+        """Keyframe 0 at the first sample: priors on its state (an aligned start's: ``fusion.align``)."""
         pose, vel = self._first
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-        for prior in priors_on_first(pose, vel, *self._prior_sigmas):
+        priors = self.alignment.prior if self.alignment is not None else priors_on_first(pose, vel, *self._prior_sigmas)
+        for prior in priors:
             graph.add(prior)
         values.insert(X(0), pose)
         values.insert(V(0), vel)
@@ -530,20 +618,21 @@ class OnlineFusion:
         raw = np.concatenate([gyro, acc], axis=1)
         if not np.all(np.isfinite(t)) or not np.all(np.isfinite(raw)):
             raise InputError(f"add_imu: NaN or Inf in the block starting at t={t[0]} s")
-        before = self._t[-1:]
+        before = self._pending_t[-1:] if self._first is None else self._t[-1:]
         steps = np.diff(np.concatenate([before, t]))
         if np.any(steps <= 0):
             bad = t[int(np.argmax(steps <= 0)) + 1 - len(before)]
             raise InputError(f"add_imu: timestamps must be strictly increasing; t={bad} s is not")
         models = [m for m in (self._model, self._motion) if m is not None]
-        if models and not self._rate_checked and len(self._t) + len(t) >= RATE_CHECK_SAMPLES:
+        seen = self._pending_t if self._first is None else self._t
+        if models and not self._rate_checked and len(seen) + len(t) >= RATE_CHECK_SAMPLES:
             self._rate_checked = True  # the models' training rate against the stream's, as correct() checks it
             from learned_imu.network.rate import check_times_rate
 
             for model in models:
-                check_times_rate(model, np.concatenate([self._t, t]), "add_imu")
-        if self._model is None and self._noise_sample is not None:
-            self._check_noise(t, raw)
+                check_times_rate(model, np.concatenate([seen, t]), "add_imu")
+        if self._model is None and self._noise_sample is not None and self._first is not None:
+            self._check_noise(t, raw)  # (before an alignment the samples are checked as they are replayed)
         return t, raw
 
     def _check_noise(self, t: np.ndarray, raw: np.ndarray) -> None:

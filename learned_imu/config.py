@@ -137,6 +137,11 @@ class MotionConfig:
     # one-sigma angle of a random rotation of each training chunk's IMU frame (inputs and target alike: the same
     # motion seen by an IMU mounted a little differently); 0: none
     frame_rotation_deg: float = 0.0
+    # symmetries of the platform the training chunks are also seen through (IMU axes 0 / 1 / 2; null: none): half the
+    # chunks reflected so that this IMU axis flips (a mirrored flight), and every chunk rotated about that IMU axis by
+    # a uniform angle (a vehicle whose dynamics do not care about its heading about its thrust axis)
+    mirror_axis: int | None = None
+    spin_axis: int | None = None
     covariance: float = 0.1  # weight of the variance's negative log-likelihood in the loss
 
     @property
@@ -161,6 +166,8 @@ class MotionConfig:
         _check(self, "motion.context", lambda v: v >= 0 and v % self.block == 0, f"a multiple of {self.block} >= 0")
         _check(self, "motion.tilt_noise_deg", lambda v: 0.0 <= v <= 45.0, "in [0, 45] degrees")
         _check(self, "motion.frame_rotation_deg", lambda v: 0.0 <= v <= 45.0, "in [0, 45] degrees")
+        for key in ("mirror_axis", "spin_axis"):
+            _check(self, f"motion.{key}", lambda v: v is None or v in (0, 1, 2), "null or an IMU axis 0, 1 or 2")
         _check(self, "motion.covariance", _non_negative, "a weight >= 0")
 
 

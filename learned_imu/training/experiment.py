@@ -189,6 +189,8 @@ def build_motion_chunks(
             math.radians(m.tilt_noise_deg),
             True,
             math.radians(m.frame_rotation_deg),
+            m.mirror_axis,
+            m.spin_axis,
         )
         if part is None:
             log.warning("%s: no usable chunk of %d samples (gaps, invalid truth); skipped", s.name, m.context + m.chunk)

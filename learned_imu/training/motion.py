@@ -50,6 +50,8 @@ class MotionChunks:
     context_blocks: int
     tilt_noise_rad: float = 0.0
     frame_rotation_rad: float = 0.0
+    mirror_axis: int | None = None
+    spin_axis: int | None = None
 
     def __len__(self) -> int:
         return self.gyro.shape[0]
@@ -75,6 +77,11 @@ class MotionChunks:
         if perturb and self.frame_rotation_rad > 0:
             q = _random_rotations(len(self), self.frame_rotation_rad, gyro)  # new IMU frame <- old, per chunk
             gyro, acc, up, target = (torch.einsum("bij,bnj->bni", q, x) for x in (gyro, acc, up, target))
+        if perturb and (self.mirror_axis is not None or self.spin_axis is not None):
+            q = _symmetry_maps(len(self), self.mirror_axis, self.spin_axis, gyro)
+            acc, up, target = (torch.einsum("bij,bnj->bni", q, x) for x in (acc, up, target))
+            # the angular rate is a pseudo-vector: a reflection (det -1) flips it once more
+            gyro = torch.einsum("bij,bnj->bni", q, gyro) * torch.linalg.det(q)[:, None, None]
         out = model(gyro, acc, up)
         return Motion(out.vel[:, self.context_blocks :], out.vel_var[:, self.context_blocks :]), target
 
@@ -108,6 +115,8 @@ class MotionChunks:
             self.context_blocks,
             self.tilt_noise_rad,
             self.frame_rotation_rad,
+            self.mirror_axis,
+            self.spin_axis,
         )
 
 
@@ -120,6 +129,8 @@ def make_motion_chunks(
     tilt_noise_rad: float = 0.0,
     allow_empty: bool = False,
     frame_rotation_rad: float = 0.0,
+    mirror_axis: int | None = None,
+    spin_axis: int | None = None,
 ) -> MotionChunks | None:
     """Chunks of ``sequence`` (module docstring) starting every ``stride`` samples; ``length`` and ``context`` whole
     numbers of ``block`` samples. None (``allow_empty``) or an ``InputError`` when no chunk is usable."""
@@ -151,6 +162,8 @@ def make_motion_chunks(
         context // block,
         tilt_noise_rad,
         frame_rotation_rad,
+        mirror_axis,
+        spin_axis,
     )
 
 
@@ -158,8 +171,29 @@ def concat_motion_chunks(parts: list[MotionChunks]) -> MotionChunks:
     first = parts[0]
     fields_ = zip(*((p.gyro, p.acc, p.rot, p.target, p.valid) for p in parts), strict=True)
     return MotionChunks(
-        *(torch.cat(list(f)) for f in fields_), first.context_blocks, first.tilt_noise_rad, first.frame_rotation_rad
+        *(torch.cat(list(f)) for f in fields_),
+        first.context_blocks,
+        first.tilt_noise_rad,
+        first.frame_rotation_rad,
+        first.mirror_axis,
+        first.spin_axis,
     )
+
+
+def _symmetry_maps(batch: int, mirror_axis: int | None, spin_axis: int | None, like: torch.Tensor) -> torch.Tensor:
+    """(B, 3, 3) maps of the IMU frame, one per chunk: a rotation about ``spin_axis`` by a uniform angle, then
+    (half the chunks) the reflection that flips ``mirror_axis``; None: that part left out."""
+    q = torch.eye(3, dtype=like.dtype, device=like.device).repeat(batch, 1, 1)
+    if mirror_axis is not None:
+        flip = torch.rand(batch, device=like.device) < 0.5
+        q[flip, mirror_axis, mirror_axis] = -1.0
+    if spin_axis is not None:
+        angle = torch.rand(batch, dtype=like.dtype, device=like.device) * (2 * math.pi)
+        i, j = [a for a in range(3) if a != spin_axis]
+        s = torch.eye(3, dtype=like.dtype, device=like.device).repeat(batch, 1, 1)
+        s[:, i, i], s[:, i, j], s[:, j, i], s[:, j, j] = angle.cos(), -angle.sin(), angle.sin(), angle.cos()
+        q = s @ q
+    return q
 
 
 def _random_rotations(batch: int, sigma_rad: float, like: torch.Tensor) -> torch.Tensor:

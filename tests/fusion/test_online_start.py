@@ -131,3 +131,23 @@ def test_a_real_kitti_drive_aligns_without_its_ground_truth(shared_data):
     tilt, heading = errors(seq, found.state)
     assert tilt < 2.0 and heading < 5.0
     assert rmse(seq, fusion) < 1.0
+
+
+def test_the_replay_after_the_alignment_streams_the_model_too():
+    """With a model, the samples held while aligning are corrected in streaming mode as they are replayed: the
+    keyframes are the same as a stream started from the truth, and the run ends as close to the truth."""
+    from tests.fusion.test_online import small_model
+
+    seq = simulate("car", duration_s=40.0, seed=1)
+    gps, _ = gps_for(seq, 1.0, 0.3, seed=0, source="simulated")
+    runs = {}
+    for name, start in (
+        ("aligned", None),
+        ("truth", gtsam.NavState(gtsam.Pose3(gtsam.Rot3(seq.gt.rot[0]), seq.gt.pos[0]), seq.gt.vel[0])),
+    ):
+        fusion = OnlineFusion(small_model(), seq.gravity, start, config())
+        stream(seq, fusion, gps)
+        runs[name] = fusion
+    assert runs["aligned"].alignment is not None and runs["truth"].alignment is None
+    np.testing.assert_array_equal(runs["aligned"].trajectory().t, runs["truth"].trajectory().t)
+    assert rmse(seq, runs["aligned"]) < 1.1 * rmse(seq, runs["truth"]) + 0.02

@@ -259,7 +259,7 @@ def fuse(
             )
         gyro_cov, acc_cov = (torch.full_like(gyro, s**2) for s in config.noise_density)
         correction = Correction(gyro + d_gyro, acc, d_gyro, zero, gyro_cov, acc_cov)
-    result = _solve(sequence, fixes, correction, config, motion_model, initial_state)
+    result = _solve(sequence, fixes, correction, config, motion_model, initial_state, still=still)
     result = dataclasses.replace(result, still=still)
     if model is None and not config.noise_is_default:
         _blame_given_noise(sequence, config.noise_density, result.residuals)
@@ -278,27 +278,31 @@ def fuse(
             motion_model,
             initial_state,
             end_keyframe=True,
+            still=still if still is not None and still.samples <= cut else None,  # (its span within the head)
         )
         ends.append((float(head.t[-1]), solved.solution.trajectory.pos[-1]))
     return dataclasses.replace(result, outages=tuple(outages), outage_ends=tuple(ends))
 
 
-def _solve(sequence, fixes, correction, config, motion_model, initial_state, end_keyframe=False) -> Fused:
+def _solve(sequence, fixes, correction, config, motion_model, initial_state, end_keyframe=False, still=None) -> Fused:
     """Keyframes, the export and the graph solved; with a motion model ``config.motion.passes`` more solves, each
     with the model's velocities on the previous solution's attitude. ``end_keyframe``: a keyframe at the last
-    sample too (the state there is what the caller wants)."""
+    sample too (the state there is what the caller wants). ``still``: the log's still start, for an aligned first
+    state (``fusion.graph.build_graph``)."""
     index = _keyframes(sequence, fixes, config, motion_model is not None, initial_state is not None)
     if end_keyframe:  # the last keyframe moves there if it is one sample short (an interval needs two samples)
         last = len(sequence.t) - 1
         index = np.unique(np.append(index[index < last - 1], last))
     blind = dataclasses.replace(sequence, gt=None)  # the first state from the GPS track or start, not ground truth
     export = preintegration_export(blind, index, correction=correction)
-    solution, found = solve_export(export, fixes, config, initial_state)
+    solution, found = solve_export(export, fixes, config, initial_state, still=still)
     fused = fixes if fixes is not None else GpsFixes.none()
     velocities = None
     for _ in range(config.motion.passes if motion_model is not None else 0):  # each pass on the last attitude
         velocities = motion_on(Fused(solution, correction, fused, sequence), motion_model, config.motion.cov_scale)
-        solution, found = solve_export(export, fixes, config, initial_state, velocities, guess=solution.values)
+        solution, found = solve_export(
+            export, fixes, config, initial_state, velocities, guess=solution.values, still=still
+        )
     return Fused(solution, correction, fused, sequence, found, velocities)
 
 

@@ -47,6 +47,7 @@ from factors import (
     solve_or_explain,
     solve_with_python_factors,
 )
+from fusion.align import aligned_prior
 from fusion.config import BiasStates, FusionSettings
 from fusion.initial import (
     ALIGNED_PRIOR_SIGMAS,
@@ -58,6 +59,7 @@ from fusion.initial import (
     priors_on_first,
     sequential_initial_values,
 )
+from fusion.still import StillStart
 
 log = logging.getLogger(__name__)
 
@@ -147,6 +149,7 @@ def build_graph(
     bias: BiasStates | None = None,
     motion: BodyVelocities | None = None,
     guess: gtsam.Values | None = None,
+    still: StillStart | None = None,
 ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
     """The pose graph of an export, GPS fixes and learned body-frame velocities, and its initial values (see the
     module docstring).
@@ -159,7 +162,9 @@ def build_graph(
     graph without bias states, every bias starting at zero. ``motion``: a ``factors.MotionFactor`` at every
     keyframe inside its time span, the velocity and variance interpolated to the keyframe's time. ``guess``: values
     of this export's keyframes from an earlier solve (e.g. the pass before the motion factors changed), one more
-    candidate for the initial values (its poses and velocities).
+    candidate for the initial values (its poses and velocities). ``still``: the log's still start
+    (``fusion.still``), for an aligned first state: its gravity gives roll and pitch, and its tilt sigma the prior's
+    about the horizontal axes (``fusion.align.aligned_prior``).
     """
     settings = settings or FusionSettings()
     export = export if isinstance(export, Export) else load_export(export)
@@ -207,12 +212,15 @@ def build_graph(
         )
     if first is None:  # no ground truth: align the first state to the GPS track (attitude from gravity + a yaw search)
         _check_observable(export, gps, keyframe)
-        first = aligned_first_state(export, times, gps, imu_factors, align_gps, settings)
+        first = aligned_first_state(export, times, gps, imu_factors, align_gps, settings, still)
         sigmas = ALIGNED_PRIOR_SIGMAS
     else:
         sigmas = (settings.prior_rot_sigma_rad, settings.prior_pos_sigma_m, settings.prior_vel_sigma_m_s)
     pose0, vel0 = first
-    priors = priors_on_first(pose0, vel0, *sigmas)
+    if still is not None and sigmas == ALIGNED_PRIOR_SIGMAS:  # the still gravity's tilt sigma, heading loose
+        priors = list(aligned_prior(pose0, vel0, still.tilt_sigma_rad))
+    else:
+        priors = priors_on_first(pose0, vel0, *sigmas)
     for factor in priors:
         graph.add(factor)
     check_anchored(graph)

@@ -51,15 +51,18 @@ def known_first_state(export: Export, initial_state) -> tuple[gtsam.Pose3, np.nd
     return gtsam.Pose3(gtsam.Rot3(truth.rot[first]), truth.pos[first]), np.asarray(truth.vel[first], float)
 
 
-def aligned_first_state(export: Export, times, gps, imu_factors, gps_factors, settings):
+def aligned_first_state(export: Export, times, gps, imu_factors, gps_factors, settings, still=None):
     """Initial alignment without ground truth: position and velocity from the GPS track, roll and pitch from the
-    first interval's mean specific force (gravity), yaw by search: the heading whose first-window solution
-    (``solve_window`` with loose priors) has the lowest graph error. No assumption about the platform's motion."""
+    first interval's mean specific force (gravity; a still start's, ``fusion.still.StillStart``, when there is one,
+    and zero velocity then), yaw by search: the heading whose first-window solution (``solve_window`` with loose
+    priors) has the lowest graph error. No assumption about the platform's motion."""
     pos = np.array([np.interp(times[:2], gps.t, gps.pos[:, i]) for i in range(3)]).T
     later = min(len(gps.t) - 1, 1)
     vel = (gps.pos[later] - gps.pos[0]) / max(gps.t[later] - gps.t[0], 1e-9) if later else np.zeros(3)
     up = -export.gravity / np.linalg.norm(export.gravity)  # world up
     force = export.delta_vel[0] / export.delta_dt[0]  # body frame, ~ -gravity when not accelerating hard
+    if still is not None:
+        force, vel = still.up, np.zeros(3)
     level = _rotation_between(force / np.linalg.norm(force), up)  # world <- body, yaw arbitrary
     end = min(len(imu_factors), _window_length(gps_factors, len(imu_factors), settings))
     best = None

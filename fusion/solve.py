@@ -31,15 +31,19 @@ def solve_export(
     initial_state=None,
     motion: BodyVelocities | None = None,
     guess=None,
+    still=None,
 ) -> tuple[Solution, dict]:
     """The solution and its ``fusion.consistency.residuals`` (module docstring); inconsistencies are logged as
     warnings naming the export. ``fixes`` None: no GPS (``initial_state``, a ``gtsam.NavState`` at the first
     keyframe, or the export's ground truth then anchors the graph); ``motion``: learned body-frame velocities, a
     motion factor at every keyframe inside their span (``fusion.graph.build_graph``); ``guess``: an earlier
-    solution's values, one more candidate for the initial values."""
+    solution's values, one more candidate for the initial values; ``still``: the log's still start
+    (``fusion.still.StillStart``) for an aligned first state."""
     config = config or FuseConfig()
     settings, bias = config.graph, config.bias_states
-    graph, values = build_graph(export, fixes, settings, initial_state, bias=bias, motion=motion, guess=guess)
+    graph, values = build_graph(
+        export, fixes, settings, initial_state, bias=bias, motion=motion, guess=guess, still=still
+    )
     if bias is None or settings.backend != "gtsam":
         solution = solve(graph, values, export.keyframe_t, settings)
     else:

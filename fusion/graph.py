@@ -247,7 +247,7 @@ def build_graph(
     if bias is None:
         return graph, values
     others = [f for fixes in gps_factors.values() for f in fixes] + priors + moving
-    return _with_bias_states(values, export, bias, settings.backend, others)
+    return _with_bias_states(values, export, bias, settings.backend, others, still)
 
 
 def _states_of(values: gtsam.Values, keyframes: int, settings: FusionSettings) -> gtsam.Values:
@@ -275,9 +275,12 @@ def combined_params(export: Export, bias: BiasStates) -> gtsam.PreintegrationCom
     return params
 
 
-def _with_bias_states(values: gtsam.Values, export: Export, bias: BiasStates, backend: str, others: list):
+def _with_bias_states(
+    values: gtsam.Values, export: Export, bias: BiasStates, backend: str, others: list, still: StillStart | None = None
+):
     """The graph of ``others`` (GPS factors and priors), the export's IMU factors on ``B(k)``, the bias random walk
-    and prior (``BiasStates``); ``values`` with every ``B(k)`` at zero in place of the constant ``B(0)``."""
+    and prior (``BiasStates``; after a ``still`` start its gyro part is ``StillStart.gyro_prior_sigma``: the samples
+    have its bias taken out); ``values`` with every ``B(k)`` at zero in place of the constant ``B(0)``."""
     graph = gtsam.NonlinearFactorGraph()
     zero = gtsam.imuBias.ConstantBias()
     samples = np.diff(export.keyframe_index)
@@ -289,7 +292,8 @@ def _with_bias_states(values: gtsam.Values, export: Export, bias: BiasStates, ba
         graph.add(factor)
     for k, walk in enumerate(bias.walk_sigmas(samples) if bias.factor == "between" else ()):
         graph.add(gtsam.BetweenFactorConstantBias(B(k), B(k + 1), zero, gtsam.noiseModel.Diagonal.Sigmas(walk)))
-    prior = np.array([bias.acc_prior_sigma] * 3 + [bias.gyro_prior_sigma] * 3)
+    gyro = bias.gyro_prior_sigma if still is None else still.gyro_prior_sigma(bias.gyro_prior_sigma)
+    prior = np.concatenate([np.full(3, bias.acc_prior_sigma), np.broadcast_to(gyro, (3,))])
     graph.add(gtsam.PriorFactorConstantBias(B(0), zero, gtsam.noiseModel.Diagonal.Sigmas(prior)))
     out = gtsam.Values()
     for k in range(len(samples) + 1):

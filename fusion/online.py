@@ -390,7 +390,10 @@ class OnlineFusion:
         values.insert(V(0), vel)
         if self._bias is not None:
             zero = gtsam.imuBias.ConstantBias()
-            sigmas = np.array([self._bias.acc_prior_sigma] * 3 + [self._bias.gyro_prior_sigma] * 3)
+            gyro = self._bias.gyro_prior_sigma
+            if self.alignment is not None and self.alignment.still is not None and self._model is None:
+                gyro = self.alignment.still.gyro_prior_sigma(gyro)  # what is left after the still start's bias
+            sigmas = np.concatenate([np.full(3, self._bias.acc_prior_sigma), np.broadcast_to(gyro, (3,))])
             graph.add(gtsam.PriorFactorConstantBias(B(0), zero, gtsam.noiseModel.Diagonal.Sigmas(sigmas)))
             values.insert(B(0), zero)
         self._in_graph = 1

@@ -33,6 +33,7 @@ ACC_DRIFT_M_S2 = 0.1
 GPS_STILL_M = 0.5
 START_STILL_M_S = 0.1
 ACC_BIAS_FLOOR_M_S2 = 0.05  # the tilt's sigma covers at least this accelerometer bias (BROAD: 0.05-0.38 deg off)
+GYRO_BIAS_FLOOR_RAD_S = 1e-4  # a prior on what is left of the gyro's bias covers at least this (its instability)
 
 
 @dataclass(frozen=True)
@@ -45,6 +46,11 @@ class StillStart:
     gyro_bias_sigma: np.ndarray  # (3,) rad/s
     up: np.ndarray  # (3,) unit, the world's up axis in the body frame
     tilt_sigma_rad: float
+
+    def gyro_prior_sigma(self, configured: float) -> np.ndarray:
+        """(3,) rad/s: the sigma of a prior on the gyro bias left after this one is taken out: its own sigma, at
+        least ``GYRO_BIAS_FLOOR_RAD_S``, at most the ``configured`` prior's."""
+        return np.minimum(np.maximum(self.gyro_bias_sigma, GYRO_BIAS_FLOOR_RAD_S), configured)
 
     def to_json_dict(self) -> dict:
         return {

@@ -118,3 +118,32 @@ def test_an_aligned_start_takes_roll_and_pitch_from_the_still_gravity(shared_dat
     np.testing.assert_allclose(np.sqrt(np.linalg.eigvalsh(world[:2, :2])), result.still.tilt_sigma_rad, rtol=1e-6)
     assert np.sqrt(world[2, 2]) == pytest.approx(0.2)  # heading: the aligned prior's loose sigma
     assert initial_attitude_error(result)["tilt"] < 0.5
+
+
+def test_the_bias_prior_after_a_still_start_is_the_still_spans_own_sigma(tmp_path):
+    """With the still start's bias taken out, the prior on the gyro bias left is the still span's sigma (floored at
+    ``GYRO_BIAS_FLOOR_RAD_S``, capped by the configured prior), not the configured 0.1 rad/s; the accelerometer's is
+    the configured one."""
+    import gtsam
+
+    from fusion.config import BiasStates, FusionSettings
+    from fusion.graph import build_graph
+    from fusion.still import GYRO_BIAS_FLOOR_RAD_S, StillStart
+    from learned_imu.datasets.simulator import simulate
+    from learned_imu.export import export_preintegration, keyframes_every
+
+    sigma = np.array([2e-5, 3e-4, 0.5])
+    still = StillStart(300, 3.0, np.zeros(3), sigma, np.array([0.0, 0.0, 1.0]), 0.005)
+    np.testing.assert_allclose(still.gyro_prior_sigma(0.1), [GYRO_BIAS_FLOOR_RAD_S, 3e-4, 0.1])
+
+    seq = simulate("car", duration_s=6.0, seed=1)
+    export = export_preintegration(tmp_path / "raw.npz", seq, keyframes_every(seq, 1.0), 1e-4**2, 1e-3**2)
+    bias = BiasStates(acc_walk_sigma=1e-4, gyro_walk_sigma=1e-5, acc_prior_sigma=1.0, gyro_prior_sigma=0.1)
+    found = {}
+    for name, start in (("configured", None), ("still", still)):
+        graph, _ = build_graph(export, None, FusionSettings(), bias=bias, still=start)
+        priors = [graph.at(i) for i in range(graph.size()) if isinstance(graph.at(i), gtsam.PriorFactorConstantBias)]
+        assert len(priors) == 1
+        found[name] = priors[0].noiseModel().sigmas()
+    np.testing.assert_allclose(found["configured"], [1.0] * 3 + [0.1] * 3)
+    np.testing.assert_allclose(found["still"], [1.0] * 3 + [GYRO_BIAS_FLOOR_RAD_S, 3e-4, 0.1])

@@ -142,6 +142,8 @@ class MotionConfig:
     # a uniform angle (a vehicle whose dynamics do not care about its heading about its thrust axis)
     mirror_axis: int | None = None
     spin_axis: int | None = None
+    # half the training chunks played backwards (angular rate and velocity negated): the same path flown the other way
+    time_reversal: bool = False
     covariance: float = 0.1  # weight of the variance's negative log-likelihood in the loss
 
     @property
@@ -168,6 +170,7 @@ class MotionConfig:
         _check(self, "motion.frame_rotation_deg", lambda v: 0.0 <= v <= 45.0, "in [0, 45] degrees")
         for key in ("mirror_axis", "spin_axis"):
             _check(self, f"motion.{key}", lambda v: v is None or v in (0, 1, 2), "null or an IMU axis 0, 1 or 2")
+        _check(self, "motion.time_reversal", lambda v: isinstance(v, bool), "true or false")
         _check(self, "motion.covariance", _non_negative, "a weight >= 0")
 
 

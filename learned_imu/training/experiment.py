@@ -191,6 +191,7 @@ def build_motion_chunks(
             math.radians(m.frame_rotation_deg),
             m.mirror_axis,
             m.spin_axis,
+            m.time_reversal,
         )
         if part is None:
             log.warning("%s: no usable chunk of %d samples (gaps, invalid truth); skipped", s.name, m.context + m.chunk)

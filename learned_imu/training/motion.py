@@ -10,6 +10,11 @@ With ``frame_rotation_rad`` > 0, each training chunk is also seen from a randoml
 per chunk (random axis, angle ``N(0, frame_rotation_rad)``) applied to the gyro, the acc, the up axis and the target
 alike (the same motion measured by an IMU mounted slightly differently), against over-fitting a few flights.
 
+With ``time_reversal``, half the training chunks (drawn per chunk) are played backwards: the samples in reverse order,
+the angular rate negated, the specific force and the attitude as they are, and the target the negated body-frame
+velocity at the reversed chunk's block ends: the same path flown the other way, for which the body-frame kinematics
+``dv_b/dt = f + R^T g - w x v_b`` hold exactly as for the original (every term keeps its sign).
+
 The attitude the network reads is the ground truth's, perturbed while training: each chunk's attitude is tilted by
 a random rotation about a horizontal world axis, of angle ``N(0, tilt_noise_rad)`` (roll/pitch error: what the up
 axis ``R^T e_z`` is sensitive to), drawn from torch's global generator (part of a checkpoint, so a resumed run
@@ -40,7 +45,8 @@ from learned_imu.training.windows import usable_windows
 class MotionChunks:
     """B chunks of ``context + length`` samples. Shapes: ``gyro``, ``acc`` (B, S, 3) rad/s and m/s^2; ``rot``
     (B, S, 3, 3) ground-truth attitude world <- IMU; ``target`` (B, M, 3) body-frame velocity at the M block ends
-    after the context, m/s; ``valid`` (B, M) which targets count (all of a usable chunk's)."""
+    after the context, m/s; ``valid`` (B, M) which targets count (all of a usable chunk's); ``vel`` (B, S, 3) the
+    body-frame velocity at every sample, m/s, kept only for ``time_reversal`` (module docstring)."""
 
     gyro: torch.Tensor
     acc: torch.Tensor
@@ -52,6 +58,8 @@ class MotionChunks:
     frame_rotation_rad: float = 0.0
     mirror_axis: int | None = None
     spin_axis: int | None = None
+    time_reversal: bool = False
+    vel: torch.Tensor | None = None
 
     def __len__(self) -> int:
         return self.gyro.shape[0]
@@ -72,8 +80,11 @@ class MotionChunks:
     def _predict(self, model, perturb: bool) -> tuple[Motion, torch.Tensor]:
         """The output and the target, both in the chunk's IMU frame: rotated by a random Q (module docstring) when
         ``perturb`` and ``frame_rotation_rad`` > 0."""
-        rot = _tilted(self.rot, self.tilt_noise_rad) if perturb and self.tilt_noise_rad > 0 else self.rot
-        gyro, acc, up, target = self.gyro, self.acc, up_in_body(rot), self.target
+        gyro, acc, rot, target = self.gyro, self.acc, self.rot, self.target
+        if perturb and self.time_reversal:
+            gyro, acc, rot, target = self._reversed(torch.rand(len(self), device=gyro.device) < 0.5)
+        rot = _tilted(rot, self.tilt_noise_rad) if perturb and self.tilt_noise_rad > 0 else rot
+        up = up_in_body(rot)
         if perturb and self.frame_rotation_rad > 0:
             q = _random_rotations(len(self), self.frame_rotation_rad, gyro)  # new IMU frame <- old, per chunk
             gyro, acc, up, target = (torch.einsum("bij,bnj->bni", q, x) for x in (gyro, acc, up, target))
@@ -84,6 +95,19 @@ class MotionChunks:
             gyro = torch.einsum("bij,bnj->bni", q, gyro) * torch.linalg.det(q)[:, None, None]
         out = model(gyro, acc, up)
         return Motion(out.vel[:, self.context_blocks :], out.vel_var[:, self.context_blocks :]), target
+
+    def _reversed(self, back: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """gyro, acc, rot and target with the chunks where ``back`` (B,) played backwards (module docstring)."""
+        if self.vel is None or not bool(self.valid.all()):
+            raise ValueError("MotionChunks: time_reversal needs the per-sample velocity and whole chunks")
+        block = self.gyro.shape[1] // (self.target.shape[1] + self.context_blocks)
+        reverse = (-self.gyro.flip(1), self.acc.flip(1), self.rot.flip(1))
+        target = -self.vel.flip(1)[:, self.context_blocks * block + block - 1 :: block]
+        pick = lambda new, old: torch.where(back.view(-1, *([1] * (old.ndim - 1))), new, old)  # noqa: E731
+        return (
+            *(pick(n, o) for n, o in zip(reverse, (self.gyro, self.acc, self.rot), strict=True)),
+            pick(target, self.target),
+        )
 
     def loss(self, model, covariance: float, use_covariance: bool = True) -> torch.Tensor:
         """Mean squared velocity error plus, with ``use_covariance``, ``covariance`` times the NLL of the detached
@@ -117,6 +141,8 @@ class MotionChunks:
             self.frame_rotation_rad,
             self.mirror_axis,
             self.spin_axis,
+            self.time_reversal,
+            None if self.vel is None else op(self.vel),
         )
 
 
@@ -131,6 +157,7 @@ def make_motion_chunks(
     frame_rotation_rad: float = 0.0,
     mirror_axis: int | None = None,
     spin_axis: int | None = None,
+    time_reversal: bool = False,
 ) -> MotionChunks | None:
     """Chunks of ``sequence`` (module docstring) starting every ``stride`` samples; ``length`` and ``context`` whole
     numbers of ``block`` samples. None (``allow_empty``) or an ``InputError`` when no chunk is usable."""
@@ -152,6 +179,7 @@ def make_motion_chunks(
     gt = sequence.gt
     ends = take[:, context + block - 1 :: block]  # the block ends after the context
     target = np.einsum("bmji,bmj->bmi", gt.rot[ends], gt.vel[ends])  # R^T v
+    vel = np.einsum("bsji,bsj->bsi", gt.rot[take], gt.vel[take]) if time_reversal else None
     as_tensor = lambda x: torch.as_tensor(np.ascontiguousarray(x), dtype=torch.float32)  # noqa: E731
     return MotionChunks(
         as_tensor(sequence.gyro[take]),
@@ -164,6 +192,8 @@ def make_motion_chunks(
         frame_rotation_rad,
         mirror_axis,
         spin_axis,
+        time_reversal,
+        None if vel is None else as_tensor(vel),
     )
 
 
@@ -177,6 +207,8 @@ def concat_motion_chunks(parts: list[MotionChunks]) -> MotionChunks:
         first.frame_rotation_rad,
         first.mirror_axis,
         first.spin_axis,
+        first.time_reversal,
+        None if first.vel is None else torch.cat([p.vel for p in parts]),
     )
 
 

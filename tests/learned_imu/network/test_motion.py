@@ -161,6 +161,45 @@ def test_frame_rotation_turns_inputs_and_target_alike():
     assert (seen["up"] - up).abs().max() > 0.05  # and they did turn
 
 
+def test_time_reversal_plays_a_chunk_backwards_with_the_kinematics_intact():
+    """motion.time_reversal: a reversed chunk is the same path flown the other way: samples in reverse order, the
+    angular rate and the velocity negated; d(v_b)/dt = f - g R^T e_z - w x v_b holds for it (the clean simulated
+    IMU), the target is its velocity at its own block ends, and a draw reverses about half the chunks."""
+    import dataclasses
+
+    from learned_imu.datasets.simulator import simulate_with_truth
+
+    sim = simulate_with_truth("drone", duration_s=12.0, seed=2)
+    seq = dataclasses.replace(sim.sequence, gyro=sim.clean_gyro, acc=sim.clean_acc)
+    chunks = make_motion_chunks(seq, 450, 90, 90, 9, time_reversal=True).double()
+    assert chunks.vel.shape == chunks.gyro.shape and not make_motion_chunks(seq, 450, 90, 90, 9).time_reversal
+    dt, g = float(np.median(np.diff(seq.t))), float(np.linalg.norm(seq.gravity))
+
+    def residual(gyro, acc, rot, vel):
+        dv = (vel[:, 2:] - vel[:, :-2]) / (2 * dt)
+        return dv - (acc - g * up_in_body(rot) - torch.cross(gyro, vel, dim=-1))[:, 1:-1]
+
+    before = residual(chunks.gyro, chunks.acc, chunks.rot, chunks.vel).norm(dim=-1)
+    assert before.max() < 0.05  # m/s^2
+    back = torch.ones(len(chunks), dtype=torch.bool)
+    gyro, acc, rot, target = chunks._reversed(back)
+    vel = -chunks.vel.flip(1)
+    after = residual(gyro, acc, rot, vel).norm(dim=-1)
+    torch.testing.assert_close(after, before.flip(1), atol=1e-9, rtol=0)
+    naive = residual(chunks.gyro.flip(1), acc, rot, vel).norm(dim=-1)  # forgetting to negate the rate
+    assert naive.max() > 10 * before.max()
+    torch.testing.assert_close(target, vel[:, 90 + 8 :: 9])
+    torch.testing.assert_close(target[:, -1], -chunks.vel[:, 0])  # the last target: the chunk's first sample
+    mixed = chunks._reversed(torch.arange(len(chunks)) % 2 == 0)
+    torch.testing.assert_close(mixed[3][1::2], chunks.target[1::2])
+    torch.testing.assert_close(mixed[3][0::2], target[0::2])
+    torch.manual_seed(0)
+    model = MotionNet(conv_channels=(8, 16), gru_sizes=(16,), decoder_hidden=16)
+    _, drawn = chunks._predict(model.double(), perturb=True)
+    flipped = (drawn - chunks.target).abs().amax(dim=(1, 2)) > 1e-9
+    assert 0 < int(flipped.sum()) < len(chunks)
+
+
 def test_symmetry_maps_keep_the_body_frame_kinematics():
     """motion.mirror_axis / spin_axis: the mapped chunk is the motion of a mirrored or spun IMU, so the body-frame
     kinematics d(v_b)/dt = f - g R^T e_z - w x v_b hold for it as for the original (a reflection flips the angular
@@ -194,3 +233,5 @@ def test_symmetry_maps_keep_the_body_frame_kinematics():
             assert naive.max() > 10 * before.max()
     with pytest.raises(ConfigError, match="motion.mirror_axis"):
         MotionConfig(mirror_axis=3)
+    with pytest.raises(ConfigError, match="motion.time_reversal"):
+        MotionConfig(time_reversal="yes")

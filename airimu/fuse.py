@@ -447,18 +447,53 @@ def check_gps_units(
             continue
         if other is not None:
             misfits[unit] = other
-    if not misfits:
+    if misfits:
+        unit = min(misfits, key=misfits.get)  # the reading that explains the track best, not the first that beats it
+        other = misfits[unit]
+        if other * UNIT_REFUSAL_RATIO < as_read:
+            raise DataError(
+                path,
+                columns,
+                f"the IMU explains this GPS track far worse as read ({as_read:.3g} m/s of its velocity changes "
+                f"unexplained) than with {unit} ({other:.3g} m/s): {unit}? The {columns} columns are read as "
+                + ("degrees" if columns == "lat/lon" else "m"),
+            )
+    if columns == "lat/lon":  # altitude above the local level, not the tangent plane of the first fix
+        level = fixes.pos[:, 2] + np.sum((fixes.pos[:, :2] - fixes.pos[0, :2]) ** 2, axis=1) / (2 * EARTH_RADIUS_M)
+        fixes = GpsFixes(fixes.t, np.c_[fixes.pos[:, :2], level], fixes.sigma)
+    check_gps_altitude(sequence, path, fixes, "alt" if columns == "lat/lon" else "z")
+
+
+EARTH_RADIUS_M = 6.371e6
+
+
+ALTITUDE_UNITS = {"feet": 1.0 / 0.3048, "km": 1e-3, "cm": 100.0, "mm": 1000.0}  # the unit -> its count per metre
+
+
+def check_gps_altitude(sequence: ImuSequence, path: str | Path, fixes: GpsFixes, column: str) -> None:
+    """Refuse a GPS file whose altitude alone is in another unit than metres (feet, km), found by the IMU of a
+    ground vehicle: the track's climb against the IMU's tilt (``fusion.gps_units.vertical_scale``), only where
+    that regression decides (a road that climbs and falls; silent on flat drives and on drones) and its scale is
+    ``UNIT_REFUSAL_RATIO`` or more from 1; a ``DataError`` naming the column, the likely unit and the fix.
+    Measured on KITTI drives with 0.5 m GPS noise (BENCHMARKS.md, Hostile inputs)."""
+    from fusion.gps_units import vertical_scale
+
+    found = vertical_scale(sequence, fixes)
+    if found is None or not found.decided or 1.0 / UNIT_REFUSAL_RATIO < found.scale < UNIT_REFUSAL_RATIO:
         return
-    unit = min(misfits, key=misfits.get)  # the reading that explains the track best, not the first that beats it
-    other = misfits[unit]
-    if other * UNIT_REFUSAL_RATIO < as_read:
-        raise DataError(
-            path,
-            columns,
-            f"the IMU explains this GPS track far worse as read ({as_read:.3g} m/s of its velocity changes "
-            f"unexplained) than with {unit} ({other:.3g} m/s): {unit}? The {columns} columns are read as "
-            + ("degrees" if columns == "lat/lon" else "m"),
-        )
+    unit = min(ALTITUDE_UNITS, key=lambda u: abs(np.log(found.scale / ALTITUDE_UNITS[u])))
+    likely = abs(np.log(found.scale / ALTITUDE_UNITS[unit])) < np.log(1.5)
+    raise DataError(
+        path,
+        column,
+        f"the track climbs and falls {found.scale:.3g} +- {found.sigma:.2g} times as steeply as the IMU tilts "
+        f"(a vehicle that travels along its own axis, {found.rows} fixes, R^2 {found.r2:.2f}): "
+        + (
+            f"altitude in {unit}? Convert the {column} column to m (x {1.0 / ALTITUDE_UNITS[unit]:.6g})"
+            if likely
+            else f"the {column} column is off by that factor; it is read as m"
+        ),
+    )
 
 
 GYRO_CHECK_MAX_SPACING_S = 2.0  # check_imu_units needs fixes at least this often (median spacing)

@@ -88,6 +88,9 @@ def cases(sequence, folder: Path):
     out.append(("GPS x/y/z unit", "m (control)", units(right), None))
     for unit, scale in (("km", 1e-3), ("cm", 1e2), ("mm", 1e3)):
         out.append(("GPS x/y/z unit", unit, units(gps_file(folder, unit, t, pos * scale)), f"x/y/z in {unit}?"))
+    for unit, factor in (("feet", 1.0 / 0.3048), ("km", 1e-3)):  # the altitude alone (its m control: above)
+        path = gps_file(folder, f"alt_{unit}", t, pos * np.array([1.0, 1.0, factor]))
+        out.append(("GPS altitude unit", unit, units(path), f"altitude in {unit}?"))
     fixes = GpsFixes(t, pos, np.full((len(t), 3), 0.5))
     out.append(("GPS time unit", "s (control)", lambda: check_gps_times(sequence, "gps.csv", fixes), None))
     for unit, scale in (("ms", 1e3), ("us", 1e6), ("ns", 1e9)):

@@ -10,11 +10,16 @@ preintegrated deltas of the IMU between them give, with p the positions, g the w
 IMU's own relative rotations, so ``track_misfit`` fits that rotation per stretch (Wahba's problem, an SVD) and
 returns the RMS of what is left, m/s. A track in the wrong unit (lat/lon in radians read as degrees: 1/57.3 of the
 motion; x/y/z in km or mm) leaves the IMU's motion, or a thousand times more than it, unexplained.
+
+The altitude alone in another unit hides in that misfit (it looks like a noisier or a smoother vertical); for a
+ground vehicle its unit shows in the climb instead (``vertical_scale``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import weakref
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -36,7 +41,26 @@ CLOCK_MIN_S = 0.3  # smaller best offsets are not reported (the fixes' associati
 def track_misfit(sequence: ImuSequence, fixes: GpsFixes) -> float | None:
     """RMS, m/s, of the GPS track's velocity changes that the IMU cannot explain (module docstring); None when
     the fixes inside the IMU's span make fewer than one stretch of triples."""
-    vel, prefix, elapsed = _prefix(sequence)
+    fit = _stretch_fit(sequence, fixes)
+    if fit is None:
+        return None
+    return float(np.sqrt(np.mean(np.sum(fit.residual**2, axis=1))))
+
+
+@dataclass(frozen=True)
+class _StretchFit:
+    """The fixes kept (``pos`` (K, 3), ``t`` (K,), at least ``SPACING_S`` apart), per triple (i, j, k) of consecutive
+    kept fixes inside a whole stretch (T of them: j = 1 .. T): ``rot`` (T, 3, 3) world <- IMU at j (the stretch's
+    fitted rotation times the IMU's own), ``residual`` (T, 3) m/s (module docstring)."""
+
+    t: np.ndarray
+    pos: np.ndarray
+    rot: np.ndarray
+    residual: np.ndarray
+
+
+def _stretch_fit(sequence: ImuSequence, fixes: GpsFixes) -> _StretchFit | None:
+    rot0, vel, prefix, elapsed = _prefix(sequence)
     inside = (fixes.t >= sequence.t[0]) & (fixes.t < sequence.t[-1])
     t, pos = fixes.t[inside], fixes.pos[inside]
     keep = [0]
@@ -55,13 +79,74 @@ def track_misfit(sequence: ImuSequence, fixes: GpsFixes) -> float | None:
     u = dv - dp_ij / t1 + dp_jk / t2
     p = pos[keep]
     y = (p[2:] - p[1:-1]) / t2 - (p[1:-1] - p[:-2]) / t1 - 0.5 * np.asarray(sequence.gravity) * (t1 + t2)
-    residual = []
+    residual, rot = [], []
     for start in range(0, len(u) - STRETCH_TRIPLES + 1, STRETCH_TRIPLES):
-        uu, yy = u[start : start + STRETCH_TRIPLES], y[start : start + STRETCH_TRIPLES]
-        w, _, vt = np.linalg.svd(yy.T @ uu)
+        part = slice(start, start + STRETCH_TRIPLES)
+        w, _, vt = np.linalg.svd(y[part].T @ u[part])
         r = w @ np.diag([1.0, 1.0, np.linalg.det(w @ vt)]) @ vt  # world <- frame of sample 0 for this stretch
-        residual.append(yy - uu @ r.T)
-    return float(np.sqrt(np.mean(np.sum(np.concatenate(residual) ** 2, axis=1))))
+        residual.append(y[part] - u[part] @ r.T)
+        rot.append(r @ rot0[b[part]])
+    return _StretchFit(t[keep], p, np.concatenate(rot), np.concatenate(residual))
+
+
+VERTICAL_MIN_SPEED_M_S = 3.0  # fixes slower than this say little about the direction of travel
+VERTICAL_MIN_ROWS = 30
+VERTICAL_MIN_R2 = 0.75  # the track's grade must follow the IMU's tilt this closely (a ground vehicle on a hilly road)
+VERTICAL_MIN_SIGNIFICANCE = 5.0  # the scale at least this many standard errors from 0
+
+
+@dataclass(frozen=True)
+class VerticalScale:
+    """The GPS track's climb against the IMU's tilt (``vertical_scale``): ``scale`` (the altitude's unit over a
+    metre: 1 when the altitude is in m, 3.28 in feet, 0.001 in km), its standard error, the regression's R^2 and
+    how many fixes entered it."""
+
+    scale: float
+    sigma: float
+    r2: float
+    rows: int
+
+    @property
+    def decided(self) -> bool:
+        """The track says something about the altitude's unit (a vehicle whose direction of travel stays fixed in
+        its body, on a road that climbs and falls): R^2 and significance over ``VERTICAL_MIN_R2`` /
+        ``VERTICAL_MIN_SIGNIFICANCE``."""
+        return self.r2 >= VERTICAL_MIN_R2 and self.scale >= VERTICAL_MIN_SIGNIFICANCE * self.sigma
+
+
+def vertical_scale(sequence: ImuSequence, fixes: GpsFixes) -> VerticalScale | None:
+    """How many metres the GPS track's vertical unit is, from a ground vehicle's IMU: a car travels along a fixed
+    axis f of its body (it does not slide sideways or up), so the sine of the track's climb angle, v_z / |v|, equals
+    f . (R^T e_z), the IMU's tilt as ``track_misfit``'s stretches fit it (gravity fixes it to a fraction of a
+    degree). The sines regressed on the up axis in the body frame (both with their mean taken out, one 3-vector of
+    coefficients w = scale * f): |w| is the altitude's unit over a metre, whatever f is. Velocities over two fix
+    spacings, at ``VERTICAL_MIN_SPEED_M_S`` or faster; the gyro's median taken out first (as ``check_imu_units``).
+    None with fewer than ``VERTICAL_MIN_ROWS`` such fixes. Only ``VerticalScale.decided`` results say anything:
+    a flat road, or a drone, whose direction of travel does not follow its tilt, leave R^2 low (BENCHMARKS.md,
+    Hostile inputs: KITTI drives 2011_09_30 0033 / 0034 and 2011_10_03 0034 decide, at scale 0.96-1.07 in m and
+    2.9-3.0 in feet; most shorter drives do not)."""
+    steady = dataclasses.replace(sequence, gyro=sequence.gyro - np.median(sequence.gyro, axis=0))
+    fit = _stretch_fit(steady, fixes)
+    if fit is None:
+        return None
+    j = np.arange(1, len(fit.rot) + 1)
+    vel = (fit.pos[j + 1] - fit.pos[j - 1]) / (fit.t[j + 1] - fit.t[j - 1])[:, None]
+    moving = np.linalg.norm(vel[:, :2], axis=1) >= VERTICAL_MIN_SPEED_M_S
+    if moving.sum() < VERTICAL_MIN_ROWS:
+        return None
+    climb = vel[moving, 2] / np.linalg.norm(vel[moving], axis=1)
+    up = fit.rot[moving, 2, :]  # R^T e_z: the third row of world <- IMU
+    # a unit vector varies in the plane normal to its mean (pitch and roll): two coordinates there
+    tangent = np.linalg.svd(np.eye(3) - np.outer(*(2 * [up.mean(axis=0) / np.linalg.norm(up.mean(axis=0))])))[0][:, :2]
+    x, y = (up - up.mean(axis=0)) @ tangent, climb - climb.mean()
+    w, *_ = np.linalg.lstsq(x, y, rcond=None)
+    left = y - x @ w
+    scale = float(np.linalg.norm(w))
+    if scale == 0.0 or not float(y @ y) > 0.0:
+        return None
+    cov = float(left @ left) / (len(y) - 3) * np.linalg.inv(x.T @ x)
+    sigma = float(np.sqrt(max(w @ cov @ w, 0.0))) / scale
+    return VerticalScale(scale, sigma, 1.0 - float(left @ left) / float(y @ y), len(y))
 
 
 def clock_offset(
@@ -89,10 +174,11 @@ def clock_offset(
     return best, best_misfit, as_read
 
 
-def _prefix(sequence: ImuSequence) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The IMU's preintegrated velocity and position from sample 0 and the time elapsed, per sample (index n: at
-    sample n, in the frame of sample 0); one preintegration of the whole log per sequence, however many readings,
-    shifts and checks ask (the unit check's alternatives and the clock search ask up to ~100 times)."""
+def _prefix(sequence: ImuSequence) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The IMU's preintegrated rotation (frame of sample 0 <- IMU), velocity and position from sample 0 and the time
+    elapsed, per sample (index n: at sample n, in the frame of sample 0); one preintegration of the whole log per
+    sequence, however many readings, shifts and checks ask (the unit check's alternatives and the clock search ask up
+    to ~100 times)."""
     if sequence not in _PREFIXES:
         import torch
 
@@ -100,10 +186,11 @@ def _prefix(sequence: ImuSequence) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
         gyro, acc, dt = (torch.as_tensor(x) for x in (sequence.gyro, sequence.acc, sequence.dt))
         deltas = preintegrate(gyro, acc, dt)
+        rot = np.concatenate([np.eye(3)[None], deltas.rot.numpy()])
         vel = np.concatenate([np.zeros((1, 3)), deltas.vel.numpy()])
         prefix = np.concatenate([np.zeros((1, 3)), deltas.pos.numpy()])
         elapsed = np.concatenate([[0.0], deltas.dt.numpy()])
-        _PREFIXES[sequence] = (vel, prefix, elapsed)
+        _PREFIXES[sequence] = (rot, vel, prefix, elapsed)
     return _PREFIXES[sequence]
 
 

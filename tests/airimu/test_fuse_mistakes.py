@@ -91,6 +91,44 @@ def test_gps_in_the_wrong_unit_is_refused_naming_the_columns_and_the_unit(drive,
     np.testing.assert_allclose(radians.pos, read_gps_csv(paths["deg"]).pos, atol=1e-4)  # 12 decimals of a radian: 6 um
 
 
+def test_an_altitude_in_feet_or_km_is_refused_where_the_road_climbs(shared_data, tmp_path):
+    """The altitude alone in another unit (x/y in m): on a hilly drive the track's climb follows the car's tilt,
+    so its scale shows (2011_10_03_drive_0034, 0.5 m noise: 0.908 in m, 2.84 in feet, 0.000917 in km, each
+    +-3 %); the right file passes."""
+    import pymap3d
+
+    from airimu.fuse import check_gps_altitude
+    from learned_imu.datasets import read_sequence
+
+    seq = read_sequence(
+        "kitti_raw",
+        shared_data / "kitti_raw/2011_10_03_drive_0034.csv",
+        on_backward="drop",
+        on_duplicate="drop",
+        on_gap="keep",
+    )
+    index = np.arange(0, len(seq.t), 100)
+    index = index[seq.gt.valid[index]]
+    pos = seq.gt.pos[index] + np.random.default_rng(0).normal(0.0, 0.5, (len(index), 3))
+    lat, lon, alt = pymap3d.enu2geodetic(pos[:, 0], pos[:, 1], pos[:, 2], 49.0115, 8.4229, 112.0)
+    paths = {}
+    for unit, factor in (("m", 1.0), ("feet", 1.0 / 0.3048), ("km", 1e-3)):
+        paths[unit] = tmp_path / f"alt_{unit}.csv"
+        rows = np.c_[seq.t[index], lat, lon, alt * factor]
+        np.savetxt(paths[unit], rows, delimiter=",", header="t,lat,lon,alt", comments="", fmt="%.12f")
+    check_gps_units(seq, paths["m"], read_gps_csv(paths["m"]))
+    for unit in ("feet", "km"):
+        with pytest.raises(DataError, match=rf"field 'alt'.*altitude in {unit}\? Convert the alt column to m"):
+            check_gps_units(seq, paths[unit], read_gps_csv(paths[unit]))
+    # a drone's direction of travel does not follow its tilt: EuRoC V1_03 (fixes from its truth at 1 Hz, feet
+    # included) says nothing either way
+    flight = read_sequence("euroc", shared_data / "euroc/V1_03_difficult")
+    at = np.arange(0, len(flight.t), 200)
+    for factor in (1.0, 1.0 / 0.3048):
+        track = flight.gt.pos[at] * np.array([1.0, 1.0, factor])
+        check_gps_altitude(flight, "gps.csv", GpsFixes(flight.t[at], track, np.full((len(at), 3), 0.3)), "z")
+
+
 @pytest.mark.parametrize("late", [0.5, 1.0, 2.0, -1.5, 7.0, -30.0])  # 7 and -30 s: beyond the old +-5 s search
 def test_a_gps_clock_offset_is_estimated_and_warned_about(drive, late, caplog):
     """Fixes some seconds late (or early) against the IMU's clock: the offset at which the IMU explains the track

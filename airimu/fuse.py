@@ -515,6 +515,7 @@ def check_imu_units(sequence: ImuSequence, fixes: GpsFixes, where: object) -> No
     named together."""
     from fusion.gps_units import track_misfit
 
+    _check_gyro_turns(sequence, fixes, where)
     inside = fixes.t[(fixes.t >= sequence.t[0]) & (fixes.t <= sequence.t[-1])]
     if len(inside) < 3 or float(np.median(np.diff(inside))) > GYRO_CHECK_MAX_SPACING_S:
         return
@@ -543,6 +544,36 @@ def check_imu_units(sequence: ImuSequence, fixes: GpsFixes, where: object) -> No
         f"changes unexplained) than as {' or '.join(alike)} ({best:.3g} m/s): gyro {' or '.join(alike)}? "
         f"{fixes_text[0].upper()}{fixes_text[1:]}",
     )
+
+
+def _check_gyro_turns(sequence: ImuSequence, fixes: GpsFixes, where: object) -> None:
+    """The car's test of ``check_imu_units``: the track's turns against the gyro's (``fusion.gps_units.heading_scale``;
+    a vehicle that heads where it goes), refused where that regression decides and its slope is negative (the
+    gyro's sign flipped) or ``UNIT_REFUSAL_RATIO`` or more from 1, naming the closest of ``GYRO_READINGS``. Finds a
+    rad/s gyro shrunk 57x on mostly straight drives where the track misfit does not (KITTI 2011_10_03_drive_0047:
+    slope 45 +- 3.6 against 0.785 +- 0.064 as recorded)."""
+    from fusion.gps_units import heading_scale
+
+    found = heading_scale(sequence, fixes)
+    if found is None or not found.decided or 1.0 / UNIT_REFUSAL_RATIO < found.scale < UNIT_REFUSAL_RATIO:
+        return
+    said = (
+        f"the GPS track turns {found.scale:.3g} +- {found.sigma:.2g} times as far as the gyro says (a vehicle that "
+        f"heads where it goes, {found.rows} turns, R^2 {found.r2:.2f}): "
+    )
+    if found.scale < 0:
+        raise DataError(
+            where,
+            "gyro",
+            said + "the gyro's sign is flipped? (rates about the up axis must be positive "
+            "turning left, counter-clockwise seen from above)",
+        )
+    unit = min(GYRO_READINGS, key=lambda u: abs(np.log(found.scale / GYRO_READINGS[u][0])))
+    if abs(np.log(found.scale / GYRO_READINGS[unit][0])) < np.log(1.5):
+        raise DataError(
+            where, "gyro", said + f"gyro {unit}? {GYRO_READINGS[unit][1][0].upper()}{GYRO_READINGS[unit][1][1:]}"
+        )
+    raise DataError(where, "gyro", said + "the gyro is off by that factor; it is read as rad/s")
 
 
 def check_model_against_raw(sequence: ImuSequence, out: Correction, fixes: GpsFixes, checkpoint) -> None:

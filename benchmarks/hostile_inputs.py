@@ -7,9 +7,9 @@ warned with the right cause, accepted and right (the controls), a wrong-cause me
 
 GPS: the drive's ground truth at 1 Hz with 0.5 m noise (as a user's CSV would carry it), run through the checks that
 ``airimu fuse`` runs on a GPS file before fusing (``check_gps_units``, ``check_gps_times``, ``check_gps_clock``,
-``read_gps_csv``'s sigma check); models: ``check_model_against_raw`` with an untrained AirIMU network whose gyro
-output is offset; the gyro's unit: ``check_imu_units`` (the track explained by the gyro as read and in other units,
-no ground truth).
+``read_gps_csv``'s sigma check, the altitude alone in feet or km); models: ``check_model_against_raw`` with an untrained AirIMU network whose gyro
+output is offset; the gyro's unit and sign: ``check_imu_units`` (the track's turns against the gyro's, and the track
+explained by the gyro as read and in other units; no ground truth).
 """
 
 from __future__ import annotations
@@ -114,6 +114,7 @@ def cases(sequence, folder: Path):
         ("deg/s", 180.0 / np.pi, "deg/s"),
         ("mrad/s", 1000.0, "mrad/s"),
         ("rad/s read as deg/s", np.pi / 180.0, "converted as if deg/s"),
+        ("sign flipped", -1.0, "sign is flipped"),
     ):
         wrong = dataclasses.replace(blind, gyro=blind.gyro * scale)
         out.append(("gyro unit (GPS track)", label, lambda w=wrong: check_imu_units(w, fixes, "imu.csv"), cause))

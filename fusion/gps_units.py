@@ -89,49 +89,50 @@ def _stretch_fit(sequence: ImuSequence, fixes: GpsFixes) -> _StretchFit | None:
     return _StretchFit(t[keep], p, np.concatenate(rot), np.concatenate(residual))
 
 
-VERTICAL_MIN_SPEED_M_S = 3.0  # fixes slower than this say little about the direction of travel
+MIN_SPEED_M_S = 3.0  # fixes slower than this say little about the direction of travel
+SCALE_MIN_ROWS = 10
+SCALE_MIN_SIGNIFICANCE = 5.0  # a scale at least this many standard errors from 0
 VERTICAL_MIN_ROWS = 30
-VERTICAL_MIN_R2 = 0.75  # the track's grade must follow the IMU's tilt this closely (a ground vehicle on a hilly road)
-VERTICAL_MIN_SIGNIFICANCE = 5.0  # the scale at least this many standard errors from 0
+VERTICAL_MIN_R2 = 0.75  # the track's climb must follow the IMU's tilt this closely (a ground vehicle, a hilly road)
+HEADING_MIN_R2 = 0.5  # the track's turns must follow the gyro's this closely (a vehicle that turns where it heads)
 
 
 @dataclass(frozen=True)
-class VerticalScale:
-    """The GPS track's climb against the IMU's tilt (``vertical_scale``): ``scale`` (the altitude's unit over a
-    metre: 1 when the altitude is in m, 3.28 in feet, 0.001 in km), its standard error, the regression's R^2 and
-    how many fixes entered it."""
+class TrackScale:
+    """A slope of the GPS track against the IMU (``vertical_scale``, ``heading_scale``): ``scale``, its standard
+    error ``sigma``, the regression's ``r2``, the number of ``rows`` in it and the R^2 it needs (``min_r2``)."""
 
     scale: float
     sigma: float
     r2: float
     rows: int
+    min_r2: float
 
     @property
     def decided(self) -> bool:
-        """The track says something about the altitude's unit (a vehicle whose direction of travel stays fixed in
-        its body, on a road that climbs and falls): R^2 and significance over ``VERTICAL_MIN_R2`` /
-        ``VERTICAL_MIN_SIGNIFICANCE``."""
-        return self.r2 >= VERTICAL_MIN_R2 and self.scale >= VERTICAL_MIN_SIGNIFICANCE * self.sigma
+        """The track says something about the scale: R^2 at least ``min_r2`` and the scale at least
+        ``SCALE_MIN_SIGNIFICANCE`` standard errors from 0."""
+        return self.r2 >= self.min_r2 and abs(self.scale) >= SCALE_MIN_SIGNIFICANCE * self.sigma
 
 
-def vertical_scale(sequence: ImuSequence, fixes: GpsFixes) -> VerticalScale | None:
+def vertical_scale(sequence: ImuSequence, fixes: GpsFixes) -> TrackScale | None:
     """How many metres the GPS track's vertical unit is, from a ground vehicle's IMU: a car travels along a fixed
     axis f of its body (it does not slide sideways or up), so the sine of the track's climb angle, v_z / |v|, equals
     f . (R^T e_z), the IMU's tilt as ``track_misfit``'s stretches fit it (gravity fixes it to a fraction of a
-    degree). The sines regressed on the up axis in the body frame (both with their mean taken out, one 3-vector of
-    coefficients w = scale * f): |w| is the altitude's unit over a metre, whatever f is. Velocities over two fix
-    spacings, at ``VERTICAL_MIN_SPEED_M_S`` or faster; the gyro's median taken out first (as ``check_imu_units``).
-    None with fewer than ``VERTICAL_MIN_ROWS`` such fixes. Only ``VerticalScale.decided`` results say anything:
-    a flat road, or a drone, whose direction of travel does not follow its tilt, leave R^2 low (BENCHMARKS.md,
-    Hostile inputs: KITTI drives 2011_09_30 0033 / 0034 and 2011_10_03 0034 decide, at scale 0.96-1.07 in m and
-    2.9-3.0 in feet; most shorter drives do not)."""
+    degree). The sines regressed on the up axis in the body frame (both with their mean taken out, the up axis in
+    the two coordinates it varies in; coefficients w = scale * f): |w| is the altitude's unit over a metre, whatever
+    f is. Velocities over two fix spacings, at ``MIN_SPEED_M_S`` or faster; the gyro's median taken out first (as
+    ``check_imu_units``). None with fewer than ``VERTICAL_MIN_ROWS`` such fixes. Only decided results say anything
+    (R^2 >= ``VERTICAL_MIN_R2``): a flat road, or a drone, whose direction of travel does not follow its tilt,
+    leave R^2 low. KITTI raw drives with 0.5 m GPS noise: 2011_09_30 0033 / 0034 and 2011_10_03 0034 decide, at
+    0.84-0.95 in m and 2.65-2.95 in feet; the shorter and flatter drives do not (BENCHMARKS.md, Hostile inputs)."""
     steady = dataclasses.replace(sequence, gyro=sequence.gyro - np.median(sequence.gyro, axis=0))
     fit = _stretch_fit(steady, fixes)
     if fit is None:
         return None
     j = np.arange(1, len(fit.rot) + 1)
     vel = (fit.pos[j + 1] - fit.pos[j - 1]) / (fit.t[j + 1] - fit.t[j - 1])[:, None]
-    moving = np.linalg.norm(vel[:, :2], axis=1) >= VERTICAL_MIN_SPEED_M_S
+    moving = np.linalg.norm(vel[:, :2], axis=1) >= MIN_SPEED_M_S
     if moving.sum() < VERTICAL_MIN_ROWS:
         return None
     climb = vel[moving, 2] / np.linalg.norm(vel[moving], axis=1)
@@ -146,7 +147,51 @@ def vertical_scale(sequence: ImuSequence, fixes: GpsFixes) -> VerticalScale | No
         return None
     cov = float(left @ left) / (len(y) - 3) * np.linalg.inv(x.T @ x)
     sigma = float(np.sqrt(max(w @ cov @ w, 0.0))) / scale
-    return VerticalScale(scale, sigma, 1.0 - float(left @ left) / float(y @ y), len(y))
+    return TrackScale(scale, sigma, 1.0 - float(left @ left) / float(y @ y), len(y), VERTICAL_MIN_R2)
+
+
+def heading_scale(sequence: ImuSequence, fixes: GpsFixes) -> TrackScale | None:
+    """How many times the GPS track turns as far as the gyro says, for a vehicle that heads where it goes (a car, a
+    fixed-wing): the change of the track's course from one chord (consecutive fixes ``SPACING_S`` or more apart,
+    both at ``MIN_SPEED_M_S`` or faster) to the next, regressed through 0 on the change of the gyro's heading
+    averaged over the same chords (the rate about the up axis, up from the accelerometer averaged over +-1 s; the
+    gyro's median taken out first). 1 for a gyro in rad/s; pi/180 for one in deg/s read as rad/s, 1e-3 for mrad/s,
+    180/pi for rad/s converted as if deg/s; -1 for a gyro whose sign is flipped. None with fewer than
+    ``SCALE_MIN_ROWS`` pairs of chords; decided with R^2 >= ``HEADING_MIN_R2`` (a drone that flies sideways is
+    not). KITTI raw drives with 0.5 m GPS noise (BENCHMARKS.md, Hostile inputs)."""
+    inside = (fixes.t >= sequence.t[0]) & (fixes.t <= sequence.t[-1])
+    t, pos = fixes.t[inside], fixes.pos[inside]
+    keep = [0] if len(t) else []
+    for i in range(1, len(t)):
+        if t[i] - t[keep[-1]] >= SPACING_S:
+            keep.append(i)
+    if len(keep) < SCALE_MIN_ROWS + 2:
+        return None
+    t, pos = t[keep], pos[keep]
+    dt = np.diff(sequence.t)
+    half = max(1, int(round(1.0 / float(np.median(dt)))))
+    total = np.concatenate([np.zeros((1, 3)), np.cumsum(sequence.acc, axis=0)])
+    n = np.arange(len(sequence.t))
+    lo, hi = np.clip(n - half, 0, None), np.clip(n + half + 1, None, len(sequence.t))
+    up = (total[hi] - total[lo]) / (hi - lo)[:, None]
+    up /= np.linalg.norm(up, axis=1, keepdims=True)
+    rate = np.sum((sequence.gyro - np.median(sequence.gyro, axis=0)) * up, axis=1)
+    heading = np.concatenate([[0.0], np.cumsum(rate[:-1] * dt)])  # rad, at each sample
+    area = np.concatenate([[0.0], np.cumsum(0.5 * (heading[1:] + heading[:-1]) * dt)])  # its integral over time
+    at = np.interp(t, sequence.t, area)
+    mean_heading = np.diff(at) / np.diff(t)  # over each chord
+    chord = np.diff(pos[:, :2], axis=0)
+    fast = np.linalg.norm(chord, axis=1) / np.diff(t) >= MIN_SPEED_M_S
+    course = np.arctan2(chord[:, 1], chord[:, 0])
+    pair = fast[1:] & fast[:-1]
+    turn = np.angle(np.exp(1j * np.diff(course)))[pair]
+    gyro_turn = np.diff(mean_heading)[pair]
+    if len(turn) < SCALE_MIN_ROWS or not float(gyro_turn @ gyro_turn) > 0.0 or not float(turn @ turn) > 0.0:
+        return None
+    scale = float(gyro_turn @ turn) / float(gyro_turn @ gyro_turn)
+    left = turn - scale * gyro_turn
+    sigma = float(np.sqrt(float(left @ left) / (len(turn) - 1) / float(gyro_turn @ gyro_turn)))
+    return TrackScale(scale, sigma, 1.0 - float(left @ left) / float(turn @ turn), len(turn), HEADING_MIN_R2)
 
 
 def clock_offset(

@@ -553,6 +553,33 @@ def test_a_gyro_in_another_unit_is_refused_by_the_gps_track_without_ground_truth
     assert "gyro_unit=deg/s" in message if named == "deg/s" else "by 1000" in message
 
 
+def test_a_car_gyro_shrunk_57x_or_negated_is_refused_by_the_tracks_turns(shared_data):
+    """A mostly straight drive (2011_10_03_drive_0047) barely needs its gyro, so a rad/s gyro converted as if deg/s
+    (57x small) fit the track misfit as well as the right one; the track's turns against the gyro's tell (slope
+    0.99 +- 0.12 as recorded, 57 +- 7 shrunk, -0.99 negated, at 1-Hz fixes with 0.5 m noise)."""
+    from airimu.fuse import check_imu_units
+    from learned_imu.datasets import read_sequence
+
+    seq = read_sequence(
+        "kitti_raw",
+        shared_data / "kitti_raw/2011_10_03_drive_0047.csv",
+        on_backward="drop",
+        on_duplicate="drop",
+        on_gap="keep",
+    )
+    index = np.arange(0, len(seq.t), 100)
+    index = index[seq.gt.valid[index]]
+    pos = seq.gt.pos[index] + np.random.default_rng(0).normal(0.0, 0.5, (len(index), 3))
+    fixes = GpsFixes(seq.t[index], pos, np.full((len(index), 3), 0.5))
+    blind = dataclasses.replace(seq, gt=None, gps=None)
+    check_imu_units(blind, fixes, "imu.csv")
+    shrunk = dataclasses.replace(blind, gyro=blind.gyro * np.pi / 180.0)
+    with pytest.raises(DataError, match=r"imu\.csv: field 'gyro'.*turns .* as far as the gyro.*converted as if deg/s"):
+        check_imu_units(shrunk, fixes, "imu.csv")
+    with pytest.raises(DataError, match=r"field 'gyro'.*sign is flipped"):
+        check_imu_units(dataclasses.replace(blind, gyro=-blind.gyro), fixes, "imu.csv")
+
+
 def test_the_gyro_unit_check_is_quiet_on_euroc_and_skips_sparse_fixes(shared_data):
     """EuRoC's raw gyro (biased: as read it explains the track worse than no rotation at all, before its median is
     taken out) is accepted with 1-Hz fixes; with a fix every 10 s the check does not run."""

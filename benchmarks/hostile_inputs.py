@@ -6,10 +6,10 @@ warned with the right cause, accepted and right (the controls), a wrong-cause me
         --drive 2011_10_03_drive_0027
 
 GPS: the drive's ground truth at 1 Hz with 0.5 m noise (as a user's CSV would carry it), run through the checks that
-``airimu fuse`` runs on a GPS file before fusing (``check_gps_units``, ``check_gps_times``, ``check_gps_clock``,
-``read_gps_csv``'s sigma check, the altitude alone in feet or km); models: ``check_model_against_raw`` with an untrained AirIMU network whose gyro
-output is offset; the gyro's unit and sign: ``check_imu_units`` (the track's turns against the gyro's, and the track
-explained by the gyro as read and in other units; no ground truth).
+``airimu fuse`` runs on a GPS file before fusing (``check_gps_units``, the altitude alone in feet or km included,
+``check_gps_times``, ``check_gps_clock``, ``read_gps_csv``'s sigma check); models: ``check_model_against_raw`` with an
+untrained AirIMU network whose gyro output is offset; the gyro's unit and sign: ``check_imu_units`` (the track's
+turns against the gyro's, and the track explained by the gyro as read and in other units; no ground truth).
 """
 
 from __future__ import annotations

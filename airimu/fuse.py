@@ -464,9 +464,7 @@ def check_gps_units(
     check_gps_altitude(sequence, path, fixes, "alt" if columns == "lat/lon" else "z")
 
 
-EARTH_RADIUS_M = 6.371e6
-
-
+EARTH_RADIUS_M = 6.371e6  # the lat/lon track's curvature taken out before its climb is read
 ALTITUDE_UNITS = {"feet": 1.0 / 0.3048, "km": 1e-3, "cm": 100.0, "mm": 1000.0}  # the unit -> its count per metre
 
 
@@ -550,8 +548,8 @@ def _check_gyro_turns(sequence: ImuSequence, fixes: GpsFixes, where: object) -> 
     """The car's test of ``check_imu_units``: the track's turns against the gyro's (``fusion.gps_units.heading_scale``;
     a vehicle that heads where it goes), refused where that regression decides and its slope is negative (the
     gyro's sign flipped) or ``UNIT_REFUSAL_RATIO`` or more from 1, naming the closest of ``GYRO_READINGS``. Finds a
-    rad/s gyro shrunk 57x on mostly straight drives where the track misfit does not (KITTI 2011_10_03_drive_0047:
-    slope 45 +- 3.6 against 0.785 +- 0.064 as recorded)."""
+    rad/s gyro shrunk 57x on mostly straight drives where the track misfit does not (KITTI 2011_10_03_drive_0047,
+    1-Hz fixes with 0.5 m noise: slope 56.6 +- 7.1 against 0.988 +- 0.12 as recorded)."""
     from fusion.gps_units import heading_scale
 
     found = heading_scale(sequence, fixes)

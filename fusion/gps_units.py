@@ -47,6 +47,15 @@ def track_misfit(sequence: ImuSequence, fixes: GpsFixes) -> float | None:
     return float(np.sqrt(np.mean(np.sum(fit.residual**2, axis=1))))
 
 
+def _spaced(t: np.ndarray) -> list[int]:
+    """Indices of the fix times ``t`` kept so that each is at least ``SPACING_S`` after the one kept before."""
+    keep = [0] if len(t) else []
+    for i in range(1, len(t)):
+        if t[i] - t[keep[-1]] >= SPACING_S:
+            keep.append(i)
+    return keep
+
+
 @dataclass(frozen=True)
 class _StretchFit:
     """The fixes kept (``pos`` (K, 3), ``t`` (K,), at least ``SPACING_S`` apart), per triple (i, j, k) of consecutive
@@ -63,10 +72,7 @@ def _stretch_fit(sequence: ImuSequence, fixes: GpsFixes) -> _StretchFit | None:
     rot0, vel, prefix, elapsed = _prefix(sequence)
     inside = (fixes.t >= sequence.t[0]) & (fixes.t < sequence.t[-1])
     t, pos = fixes.t[inside], fixes.pos[inside]
-    keep = [0]
-    for i in range(1, len(t)):
-        if t[i] - t[keep[-1]] >= SPACING_S:
-            keep.append(i)
+    keep = _spaced(t)
     if len(keep) < STRETCH_TRIPLES + 2:
         return None
     sample = np.clip(np.searchsorted(sequence.t, t[keep]), 0, len(sequence.t) - 1)
@@ -138,7 +144,7 @@ def vertical_scale(sequence: ImuSequence, fixes: GpsFixes) -> TrackScale | None:
     climb = vel[moving, 2] / np.linalg.norm(vel[moving], axis=1)
     up = fit.rot[moving, 2, :]  # R^T e_z: the third row of world <- IMU
     # a unit vector varies in the plane normal to its mean (pitch and roll): two coordinates there
-    tangent = np.linalg.svd(np.eye(3) - np.outer(*(2 * [up.mean(axis=0) / np.linalg.norm(up.mean(axis=0))])))[0][:, :2]
+    tangent = np.linalg.svd(up.mean(axis=0)[None, :])[2][1:].T  # (3, 2): an orthonormal basis of that plane
     x, y = (up - up.mean(axis=0)) @ tangent, climb - climb.mean()
     w, *_ = np.linalg.lstsq(x, y, rcond=None)
     left = y - x @ w
@@ -161,10 +167,7 @@ def heading_scale(sequence: ImuSequence, fixes: GpsFixes) -> TrackScale | None:
     not). KITTI raw drives with 0.5 m GPS noise (BENCHMARKS.md, Hostile inputs)."""
     inside = (fixes.t >= sequence.t[0]) & (fixes.t <= sequence.t[-1])
     t, pos = fixes.t[inside], fixes.pos[inside]
-    keep = [0] if len(t) else []
-    for i in range(1, len(t)):
-        if t[i] - t[keep[-1]] >= SPACING_S:
-            keep.append(i)
+    keep = _spaced(t)
     if len(keep) < SCALE_MIN_ROWS + 2:
         return None
     t, pos = t[keep], pos[keep]

@@ -65,6 +65,20 @@ def gps_files(folder, seq):
     return paths
 
 
+def drive_with_fixes(shared_data, name: str):
+    """A KITTI raw drive (replayed packets and duplicates dropped, gaps kept) and its ground truth at 1 Hz with 0.5 m
+    noise as GPS fixes (sigma 0.5 m)."""
+    from learned_imu.datasets import read_sequence
+
+    seq = read_sequence(
+        "kitti_raw", shared_data / f"kitti_raw/{name}.csv", on_backward="drop", on_duplicate="drop", on_gap="keep"
+    )
+    index = np.arange(0, len(seq.t), 100)
+    index = index[seq.gt.valid[index]]
+    pos = seq.gt.pos[index] + np.random.default_rng(0).normal(0.0, 0.5, (len(index), 3))
+    return seq, GpsFixes(seq.t[index], pos, np.full((len(index), 3), 0.5))
+
+
 def run(capsys, monkeypatch, *args) -> tuple[int, str]:
     monkeypatch.setattr(sys, "argv", ["airimu", *map(str, args)])
     monkeypatch.delenv("AIRIMU_DEBUG", raising=False)
@@ -100,21 +114,13 @@ def test_an_altitude_in_feet_or_km_is_refused_where_the_road_climbs(shared_data,
     from airimu.fuse import check_gps_altitude
     from learned_imu.datasets import read_sequence
 
-    seq = read_sequence(
-        "kitti_raw",
-        shared_data / "kitti_raw/2011_10_03_drive_0034.csv",
-        on_backward="drop",
-        on_duplicate="drop",
-        on_gap="keep",
-    )
-    index = np.arange(0, len(seq.t), 100)
-    index = index[seq.gt.valid[index]]
-    pos = seq.gt.pos[index] + np.random.default_rng(0).normal(0.0, 0.5, (len(index), 3))
+    seq, fixes = drive_with_fixes(shared_data, "2011_10_03_drive_0034")
+    pos = fixes.pos
     lat, lon, alt = pymap3d.enu2geodetic(pos[:, 0], pos[:, 1], pos[:, 2], 49.0115, 8.4229, 112.0)
     paths = {}
     for unit, factor in (("m", 1.0), ("feet", 1.0 / 0.3048), ("km", 1e-3)):
         paths[unit] = tmp_path / f"alt_{unit}.csv"
-        rows = np.c_[seq.t[index], lat, lon, alt * factor]
+        rows = np.c_[fixes.t, lat, lon, alt * factor]
         np.savetxt(paths[unit], rows, delimiter=",", header="t,lat,lon,alt", comments="", fmt="%.12f")
     check_gps_units(seq, paths["m"], read_gps_csv(paths["m"]))
     for unit in ("feet", "km"):
@@ -558,19 +564,8 @@ def test_a_car_gyro_shrunk_57x_or_negated_is_refused_by_the_tracks_turns(shared_
     (57x small) fit the track misfit as well as the right one; the track's turns against the gyro's tell (slope
     0.99 +- 0.12 as recorded, 57 +- 7 shrunk, -0.99 negated, at 1-Hz fixes with 0.5 m noise)."""
     from airimu.fuse import check_imu_units
-    from learned_imu.datasets import read_sequence
 
-    seq = read_sequence(
-        "kitti_raw",
-        shared_data / "kitti_raw/2011_10_03_drive_0047.csv",
-        on_backward="drop",
-        on_duplicate="drop",
-        on_gap="keep",
-    )
-    index = np.arange(0, len(seq.t), 100)
-    index = index[seq.gt.valid[index]]
-    pos = seq.gt.pos[index] + np.random.default_rng(0).normal(0.0, 0.5, (len(index), 3))
-    fixes = GpsFixes(seq.t[index], pos, np.full((len(index), 3), 0.5))
+    seq, fixes = drive_with_fixes(shared_data, "2011_10_03_drive_0047")
     blind = dataclasses.replace(seq, gt=None, gps=None)
     check_imu_units(blind, fixes, "imu.csv")
     shrunk = dataclasses.replace(blind, gyro=blind.gyro * np.pi / 180.0)

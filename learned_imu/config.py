@@ -145,6 +145,9 @@ class MotionConfig:
     # half the training chunks played backwards (angular rate and velocity negated): the same path flown the other way
     time_reversal: bool = False
     covariance: float = 0.1  # weight of the variance's negative log-likelihood in the loss
+    # weight of the drift term: the squared world-frame mean velocity error over every prefix of a chunk
+    # (learned_imu.training.motion); 0: none
+    drift: float = 0.0
 
     @property
     def block(self) -> int:
@@ -172,6 +175,7 @@ class MotionConfig:
             _check(self, f"motion.{key}", lambda v: v is None or v in (0, 1, 2), "null or an IMU axis 0, 1 or 2")
         _check(self, "motion.time_reversal", lambda v: isinstance(v, bool), "true or false")
         _check(self, "motion.covariance", _non_negative, "a weight >= 0")
+        _check(self, "motion.drift", _non_negative, "a weight >= 0")
 
 
 @dataclass(frozen=True)

@@ -192,6 +192,7 @@ def build_motion_chunks(
             m.mirror_axis,
             m.spin_axis,
             m.time_reversal,
+            m.drift,
         )
         if part is None:
             log.warning("%s: no usable chunk of %d samples (gaps, invalid truth); skipped", s.name, m.context + m.chunk)

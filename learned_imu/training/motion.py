@@ -24,7 +24,10 @@ unperturbed truth.
 Loss (a mean over the supervised block ends): ``|v - v_gt|^2`` (m/s)^2, plus ``covariance`` times the Gaussian
 negative log-likelihood of the detached error under the predicted variance, ``0.5 (e^2 / var + log var)`` per
 axis, so the variance learns the error without pulling the velocity (the selection criterion, validation, uses the
-squared error alone).
+squared error alone). With ``drift`` > 0, plus ``drift`` times the squared world-frame mean velocity error since the
+first supervised block end, at every block end (``|sum_j R_j e_j / k|^2``, (m/s)^2; the position error over the
+chunk divided by its time): the slow part of the error, the one an integrated velocity turns into drift, weighed
+at every horizon up to the chunk's length.
 """
 
 from __future__ import annotations
@@ -60,6 +63,7 @@ class MotionChunks:
     spin_axis: int | None = None
     time_reversal: bool = False
     vel: torch.Tensor | None = None
+    drift: float = 0.0
 
     def __len__(self) -> int:
         return self.gyro.shape[0]
@@ -77,24 +81,31 @@ class MotionChunks:
         """The model's output at the supervised block ends; the attitude tilted (module docstring) if ``perturb``."""
         return self._predict(model, perturb)[0]
 
-    def _predict(self, model, perturb: bool) -> tuple[Motion, torch.Tensor]:
-        """The output and the target, both in the chunk's IMU frame: rotated by a random Q (module docstring) when
-        ``perturb`` and ``frame_rotation_rad`` > 0."""
+    def _predict(self, model, perturb: bool) -> tuple[Motion, torch.Tensor, torch.Tensor]:
+        """The output and the target, both in the chunk's IMU frame (rotated by a random Q, module docstring, when
+        ``perturb`` and ``frame_rotation_rad`` > 0), and (B, 1, 3, 3) the map from that frame to the world up to the
+        ground-truth attitude, ``Q^-1`` (``R Q^-1`` takes the output to the world)."""
         gyro, acc, rot, target = self.gyro, self.acc, self.rot, self.target
         if perturb and self.time_reversal:
             gyro, acc, rot, target = self._reversed(torch.rand(len(self), device=gyro.device) < 0.5)
+        truth = rot
         rot = _tilted(rot, self.tilt_noise_rad) if perturb and self.tilt_noise_rad > 0 else rot
         up = up_in_body(rot)
+        back = torch.eye(3, dtype=gyro.dtype, device=gyro.device).expand(len(self), 3, 3)
         if perturb and self.frame_rotation_rad > 0:
             q = _random_rotations(len(self), self.frame_rotation_rad, gyro)  # new IMU frame <- old, per chunk
             gyro, acc, up, target = (torch.einsum("bij,bnj->bni", q, x) for x in (gyro, acc, up, target))
+            back = back @ q.mT
         if perturb and (self.mirror_axis is not None or self.spin_axis is not None):
             q = _symmetry_maps(len(self), self.mirror_axis, self.spin_axis, gyro)
             acc, up, target = (torch.einsum("bij,bnj->bni", q, x) for x in (acc, up, target))
             # the angular rate is a pseudo-vector: a reflection (det -1) flips it once more
             gyro = torch.einsum("bij,bnj->bni", q, gyro) * torch.linalg.det(q)[:, None, None]
+            back = back @ q.mT  # orthogonal: the inverse is the transpose
         out = model(gyro, acc, up)
-        return Motion(out.vel[:, self.context_blocks :], out.vel_var[:, self.context_blocks :]), target
+        block = gyro.shape[1] // (self.target.shape[1] + self.context_blocks)
+        world = truth[:, self.context_blocks * block + block - 1 :: block] @ back[:, None]
+        return Motion(out.vel[:, self.context_blocks :], out.vel_var[:, self.context_blocks :]), target, world
 
     def _reversed(self, back: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """gyro, acc, rot and target with the chunks where ``back`` (B,) played backwards (module docstring)."""
@@ -113,11 +124,14 @@ class MotionChunks:
         """Mean squared velocity error plus, with ``use_covariance``, ``covariance`` times the NLL of the detached
         error (module docstring); the attitude (and, with ``frame_rotation_rad``, the IMU frame) is perturbed while
         the model trains."""
-        out, target = self._predict(model, perturb=model.training)
+        out, target, world = self._predict(model, perturb=model.training)
         err = out.vel - target
         weight = self.valid[..., None].to(err.dtype)
         count = weight.sum().clamp(min=1.0) * 3
         loss = (err.square() * weight).sum() / count
+        if self.drift > 0:
+            mean_err = (world @ (err * weight)[..., None])[..., 0].cumsum(1) / weight.cumsum(1).clamp(min=1.0)
+            loss = loss + self.drift * (mean_err.square() * weight).sum() / count
         if use_covariance and covariance > 0:
             nll = 0.5 * (err.detach().square() / out.vel_var + out.vel_var.log())
             loss = loss + covariance * (nll * weight).sum() / count
@@ -143,6 +157,7 @@ class MotionChunks:
             self.spin_axis,
             self.time_reversal,
             None if self.vel is None else op(self.vel),
+            self.drift,
         )
 
 
@@ -158,6 +173,7 @@ def make_motion_chunks(
     mirror_axis: int | None = None,
     spin_axis: int | None = None,
     time_reversal: bool = False,
+    drift: float = 0.0,
 ) -> MotionChunks | None:
     """Chunks of ``sequence`` (module docstring) starting every ``stride`` samples; ``length`` and ``context`` whole
     numbers of ``block`` samples. None (``allow_empty``) or an ``InputError`` when no chunk is usable."""
@@ -194,6 +210,7 @@ def make_motion_chunks(
         spin_axis,
         time_reversal,
         None if vel is None else as_tensor(vel),
+        drift,
     )
 
 
@@ -209,6 +226,7 @@ def concat_motion_chunks(parts: list[MotionChunks]) -> MotionChunks:
         first.spin_axis,
         first.time_reversal,
         None if first.vel is None else torch.cat([p.vel for p in parts]),
+        first.drift,
     )
 
 

@@ -152,7 +152,10 @@ def test_frame_rotation_turns_inputs_and_target_alike():
             blocks = gyro.shape[1] // 9
             return Motion(torch.zeros(gyro.shape[0], blocks, 3), torch.ones(gyro.shape[0], blocks, 3))
 
-    out, target = chunks._predict(Probe(), perturb=True)
+    out, target, world = chunks._predict(Probe(), perturb=True)
+    ends = chunks.rot[:, 90 + 8 :: 9]
+    truth_world = (ends @ chunks.target[..., None])[..., 0]
+    torch.testing.assert_close((world @ target[..., None])[..., 0], truth_world, atol=1e-4, rtol=0)
     up = up_in_body(chunks.rot)
     assert torch.allclose(seen["up"].norm(dim=-1), up.norm(dim=-1), atol=1e-5)
     assert torch.allclose(target.norm(dim=-1), chunks.target.norm(dim=-1), atol=1e-4)
@@ -195,7 +198,7 @@ def test_time_reversal_plays_a_chunk_backwards_with_the_kinematics_intact():
     torch.testing.assert_close(mixed[3][0::2], target[0::2])
     torch.manual_seed(0)
     model = MotionNet(conv_channels=(8, 16), gru_sizes=(16,), decoder_hidden=16)
-    _, drawn = chunks._predict(model.double(), perturb=True)
+    _, drawn, _ = chunks._predict(model.double(), perturb=True)
     flipped = (drawn - chunks.target).abs().amax(dim=(1, 2)) > 1e-9
     assert 0 < int(flipped.sum()) < len(chunks)
 
@@ -235,3 +238,47 @@ def test_symmetry_maps_keep_the_body_frame_kinematics():
         MotionConfig(mirror_axis=3)
     with pytest.raises(ConfigError, match="motion.time_reversal"):
         MotionConfig(time_reversal="yes")
+
+
+def test_drift_term_weighs_a_constant_bias_over_noise_of_the_same_size():
+    """motion.drift: the loss adds the squared world-frame mean velocity error over every prefix of the chunk (by
+    hand here); a constant bias costs more than an alternating error of the same mean square, which the plain
+    squared error cannot tell apart. On mirrored chunks the map back to the world undoes the reflection."""
+    seq = simulate("drone", duration_s=20.0, seed=3)
+    chunks = make_motion_chunks(seq, 450, 900, 90, 9, 0.0, False, 0.0, 1, None, False, 2.0).double()
+    bias = torch.tensor([0.1, -0.05, 0.02], dtype=torch.float64)
+    blocks = chunks.target.shape[1]
+    alternate = torch.tensor([1.0, -1.0], dtype=torch.float64).repeat(blocks)[:blocks, None]
+
+    class Offset(torch.nn.Module):
+        def __init__(self, err):
+            super().__init__()
+            self.err = err
+
+        def forward(self, gyro, acc, up):
+            head = torch.zeros_like(chunks.target[:, : chunks.context_blocks])
+            vel = torch.cat([head, chunks.target + self.err], dim=1)
+            return Motion(vel, torch.ones_like(vel))
+
+    losses = []
+    for err in (bias.expand_as(chunks.target), alternate * bias):
+        model = Offset(err).eval()  # not training: no perturbation, the target as made
+        losses.append(float(chunks.loss(model, covariance=0.0)))
+        world = chunks.rot[:, 90 + 8 :: 9]
+        mean = (world @ err[..., None])[..., 0].cumsum(1) / torch.arange(1, blocks + 1)[:, None]
+        by_hand = err.square().mean() + 2.0 * mean.square().mean()
+        assert abs(losses[-1] - float(by_hand)) < 1e-9
+    assert losses[0] > 2 * losses[1]  # same squared error (the first term), the drift term apart
+
+    class Probe(torch.nn.Module):
+        def forward(self, gyro, acc, up):
+            n = gyro.shape[1] // 9
+            return Motion(torch.zeros(gyro.shape[0], n, 3), torch.ones(gyro.shape[0], n, 3))
+
+    torch.manual_seed(0)
+    _, target, world = chunks._predict(Probe(), perturb=True)
+    assert (target - chunks.target).abs().amax() > 0.1  # some chunks mirrored
+    truth = (chunks.rot[:, 90 + 8 :: 9] @ chunks.target[..., None])[..., 0]
+    torch.testing.assert_close((world @ target[..., None])[..., 0], truth, atol=1e-9, rtol=0)
+    with pytest.raises(ConfigError, match="motion.drift"):
+        MotionConfig(drift=-1.0)

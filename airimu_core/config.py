@@ -171,7 +171,16 @@ def _convert(hint, value, source: str, key: str):
     if origin in (typing.Union, types.UnionType):
         if value is None and type(None) in args:
             return None
-        return _convert(next(a for a in args if a is not type(None)), value, source, key)
+        members = [a for a in args if a is not type(None)]
+        if len(members) == 1:
+            return _convert(members[0], value, source, key)
+        for member in members:  # the first member that reads the value (a number, or a list of them)
+            try:
+                return _convert(member, value, source, key)
+            except ConfigError:
+                pass
+        names = " or ".join("a list" if typing.get_origin(m) is tuple else m.__name__ for m in members)
+        raise ConfigError(f"{source}: key '{key}': expected {names}, got {value!r} ({type(value).__name__})")
     if origin is Literal:  # one of a fixed set of values
         if value in args:
             return value

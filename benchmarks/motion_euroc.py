@@ -91,9 +91,11 @@ def main() -> None:
     parser.add_argument("--json", help="write the rows here")
     parser.add_argument("--keyframe-s", type=float, default=MotionSettings.keyframe_s, help="motion.keyframe_s")
     parser.add_argument("--passes", type=int, default=MotionSettings.passes, help="motion.passes")
-    parser.add_argument("--cov-scale", type=float, default=MotionSettings.cov_scale, help="motion.cov_scale")
+    parser.add_argument(
+        "--cov-scale", type=float, nargs="+", default=[MotionSettings.cov_scale], help="motion.cov_scale: 1 or 3"
+    )
     args = parser.parse_args()
-    fuse_config = FuseConfig(motion=MotionSettings(args.keyframe_s, args.passes, args.cov_scale))
+    fuse_config = FuseConfig(motion=MotionSettings(args.keyframe_s, args.passes, _scale(args.cov_scale)))
     model, _ = model_from_checkpoint(args.checkpoint)
     net, _ = motion_from_checkpoint(args.motion)
     config = load_config(args.config)
@@ -123,6 +125,11 @@ def main() -> None:
         print(json.dumps(result), flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
+
+
+def _scale(numbers: list[float]) -> float | tuple[float, ...]:
+    """--cov-scale as motion.cov_scale takes it: one number, or one per body axis."""
+    return numbers[0] if len(numbers) == 1 else tuple(numbers)
 
 
 if __name__ == "__main__":

@@ -155,7 +155,9 @@ def main() -> None:
     parser.add_argument("--only", nargs="*", help="sequences to run (default: all of the folds given)")
     parser.add_argument("--keyframe-s", type=float, default=MotionSettings.keyframe_s, help="motion.keyframe_s")
     parser.add_argument("--passes", type=int, default=MotionSettings.passes, help="motion.passes")
-    parser.add_argument("--cov-scale", type=float, default=MotionSettings.cov_scale, help="motion.cov_scale")
+    parser.add_argument(
+        "--cov-scale", type=float, nargs="+", default=[MotionSettings.cov_scale], help="motion.cov_scale: 1 or 3"
+    )
     parser.add_argument("--outages", action="store_true", help="also the GPS-outage rows")
     parser.add_argument("--gtsam-drive", action="store_true", help="only GTSAM's drive, one fix in ten (fold 1)")
     parser.add_argument(
@@ -164,7 +166,7 @@ def main() -> None:
     parser.add_argument("--json", help="write the rows here")
     args = parser.parse_args()
     logging.basicConfig(level=logging.ERROR)
-    motion = MotionSettings(args.keyframe_s, args.passes, args.cov_scale)
+    motion = MotionSettings(args.keyframe_s, args.passes, _scale(args.cov_scale))
     config = FuseConfig(
         gyro_noise_density=GTSAM_NOISE[0], acc_noise_density=GTSAM_NOISE[1], keyframe_s=1.0, motion=motion
     )
@@ -208,6 +210,11 @@ def main() -> None:
                 outages += outage_rows(part, net, config)
     if args.json:
         Path(args.json).write_text(json.dumps({"t_rel": rows, "outages": outages}, indent=1))
+
+
+def _scale(numbers: list[float]) -> float | tuple[float, ...]:
+    """--cov-scale as motion.cov_scale takes it: one number, or one per body axis."""
+    return numbers[0] if len(numbers) == 1 else tuple(numbers)
 
 
 if __name__ == "__main__":

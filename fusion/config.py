@@ -152,20 +152,32 @@ class MotionSettings:
       the graph's own (one per fix, or ``keyframe_s``); null: only the graph's own.
     - ``passes``: how often the model is run and the graph solved with its velocities, each pass reading the
       attitude of the previous solution (the first: the graph without motion factors), never ground truth.
-    - ``cov_scale``: every predicted variance is multiplied by this (AirIO's EKF uses 0.1; 1: as predicted).
+    - ``cov_scale``: every predicted variance is multiplied by this (AirIO's EKF uses 0.1; 1: as predicted); one
+      number, or three, one per body axis of the model's output (``[1.0e6, 1, 1]`` leaves a car's forward speed,
+      axis x, to the IMU: sigma x 1000).
     """
 
     keyframe_s: float | None = 0.2
     passes: int = 2
-    cov_scale: float = 1.0
+    cov_scale: float | tuple[float, float, float] = 1.0
 
     def __post_init__(self):
         if self.keyframe_s is not None and not (math.isfinite(self.keyframe_s) and self.keyframe_s > 0):
             raise ConfigError(f"motion.keyframe_s must be a positive interval (s) or null, got {self.keyframe_s!r}")
         if not (isinstance(self.passes, int) and 1 <= self.passes <= 10):
             raise ConfigError(f"motion.passes must be a whole number in [1, 10], got {self.passes!r}")
-        if not (math.isfinite(self.cov_scale) and self.cov_scale > 0):
-            raise ConfigError(f"motion.cov_scale must be a positive factor, got {self.cov_scale!r}")
+        scale = self.cov_scale
+        numbers = list(scale) if isinstance(scale, (tuple, list)) else [scale]
+        if not (
+            len(numbers) in (1, 3)
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in numbers)
+            and all(math.isfinite(v) and v > 0 for v in numbers)
+        ):
+            raise ConfigError(
+                f"motion.cov_scale must be a positive factor or three (one per body axis), got {self.cov_scale!r}"
+            )
+        if isinstance(scale, list):
+            object.__setattr__(self, "cov_scale", tuple(float(v) for v in scale))
 
 
 @dataclass(frozen=True)

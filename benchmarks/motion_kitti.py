@@ -120,8 +120,8 @@ def outage_rows(seq, net, motion_config: FuseConfig) -> list[dict]:
     return rows
 
 
-def gtsam_drive_rows(net, root: Path) -> list[dict]:
-    """The ``--gtsam-drive`` rows (module docstring)."""
+def gtsam_drive_rows(net, root: Path, motion: MotionSettings) -> list[dict]:
+    """The ``--gtsam-drive`` rows (module docstring); ``motion``: the motion factors' settings (``--cov-scale``)."""
     from learned_imu.datasets import read_sequence
 
     seq = read_sequence(
@@ -132,7 +132,7 @@ def gtsam_drive_rows(net, root: Path) -> list[dict]:
     fused = gps[np.arange(len(gps.t)) % 10 == 0]
     rows = []
     for name, model in (("raw IMU", None), ("raw IMU + motion", net)):
-        result = fuse(seq, fused, None, FuseConfig(keyframe_s=1.0), motion_model=model)
+        result = fuse(seq, fused, None, FuseConfig(keyframe_s=1.0, motion=motion), motion_model=model)
         keyframes = result.solution.trajectory
         inside = (gps.t >= keyframes.t[0]) & (gps.t <= keyframes.t[-1])
         at_fix = np.column_stack([np.interp(gps.t[inside], keyframes.t, keyframes.pos[:, i]) for i in range(3)])
@@ -174,7 +174,7 @@ def main() -> None:
     if args.gtsam_drive:
         checkpoint = dict(args.fold)["1"]
         root = Path(load_config("configs/kitti_motion_fold1.yaml").data.root)
-        rows = gtsam_drive_rows(motion_from_checkpoint(checkpoint)[0], root)
+        rows = gtsam_drive_rows(motion_from_checkpoint(checkpoint)[0], root, motion)
         args.fold = []
     for fold, checkpoint in args.fold:
         net, trained = motion_from_checkpoint(checkpoint)

@@ -106,3 +106,15 @@ def test_online_fusion_takes_the_same_config():
     assert fusion.keyframes == 4  # 0.5-s keyframes over 2 s of 200 Hz samples
     with pytest.raises(InputError, match="config must be a fusion.config.FuseConfig"):
         OnlineFusion(None, seq.gravity, first, {"keyframe_s": 0.5})
+
+
+def test_car_config_frees_the_forward_axis_and_keeps_every_other_default():
+    """configs/fuse_car.yaml (by name, as `airimu fuse --config fuse_car.yaml` reads it): the motion factor's x
+    variance scaled by 1e6, y and z as predicted; everything else the defaults of FuseConfig."""
+    import dataclasses
+
+    from fusion.config import FuseConfig, MotionSettings, load_fuse_config
+
+    car = load_fuse_config("fuse_car.yaml")
+    assert car.motion.cov_scale == (1.0e6, 1.0, 1.0)
+    assert dataclasses.replace(car, motion=MotionSettings()) == FuseConfig()

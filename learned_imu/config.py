@@ -148,6 +148,8 @@ class MotionConfig:
     # weight of the drift term: the squared world-frame mean velocity error over every prefix of a chunk
     # (learned_imu.training.motion); 0: none
     drift: float = 0.0
+    # weight of each IMU axis's velocity error in the loss (both terms, validation too): a car's forward axis low
+    axis_weights: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     @property
     def block(self) -> int:
@@ -176,6 +178,12 @@ class MotionConfig:
         _check(self, "motion.time_reversal", lambda v: isinstance(v, bool), "true or false")
         _check(self, "motion.covariance", _non_negative, "a weight >= 0")
         _check(self, "motion.drift", _non_negative, "a weight >= 0")
+        _check(
+            self,
+            "motion.axis_weights",
+            lambda v: len(v) == 3 and all(math.isfinite(w) and w >= 0 for w in v) and max(v) > 0,
+            "three weights >= 0, one per IMU axis, not all 0",
+        )
 
 
 @dataclass(frozen=True)

@@ -193,6 +193,7 @@ def build_motion_chunks(
             m.spin_axis,
             m.time_reversal,
             m.drift,
+            m.axis_weights,
         )
         if part is None:
             log.warning("%s: no usable chunk of %d samples (gaps, invalid truth); skipped", s.name, m.context + m.chunk)

@@ -27,7 +27,9 @@ axis, so the variance learns the error without pulling the velocity (the selecti
 squared error alone). With ``drift`` > 0, plus ``drift`` times the squared world-frame mean velocity error since the
 first supervised block end, at every block end (``|sum_j R_j e_j / k|^2``, (m/s)^2; the position error over the
 chunk divided by its time): the slow part of the error, the one an integrated velocity turns into drift, weighed
-at every horizon up to the chunk's length.
+at every horizon up to the chunk's length. ``axis_weights`` (3,) weigh each body axis's error in both terms, and so
+in the validation loss that picks the checkpoint (a car's forward speed, which a causal window cannot know and the
+graph may leave to the IMU, weighed low so that its over-fitting does not choose the epoch for the other two).
 """
 
 from __future__ import annotations
@@ -64,6 +66,7 @@ class MotionChunks:
     time_reversal: bool = False
     vel: torch.Tensor | None = None
     drift: float = 0.0
+    axis_weights: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     def __len__(self) -> int:
         return self.gyro.shape[0]
@@ -128,9 +131,11 @@ class MotionChunks:
         err = out.vel - target
         weight = self.valid[..., None].to(err.dtype)
         count = weight.sum().clamp(min=1.0) * 3
-        loss = (err.square() * weight).sum() / count
+        axes = torch.tensor(self.axis_weights, dtype=err.dtype, device=err.device)
+        loss = (err.square() * weight * axes).sum() / count
         if self.drift > 0:
-            mean_err = (world @ (err * weight)[..., None])[..., 0].cumsum(1) / weight.cumsum(1).clamp(min=1.0)
+            drifting = err * weight * axes.sqrt()
+            mean_err = (world @ drifting[..., None])[..., 0].cumsum(1) / weight.cumsum(1).clamp(min=1.0)
             loss = loss + self.drift * (mean_err.square() * weight).sum() / count
         if use_covariance and covariance > 0:
             nll = 0.5 * (err.detach().square() / out.vel_var + out.vel_var.log())
@@ -158,6 +163,7 @@ class MotionChunks:
             self.time_reversal,
             None if self.vel is None else op(self.vel),
             self.drift,
+            self.axis_weights,
         )
 
 
@@ -174,6 +180,7 @@ def make_motion_chunks(
     spin_axis: int | None = None,
     time_reversal: bool = False,
     drift: float = 0.0,
+    axis_weights: tuple[float, float, float] = (1.0, 1.0, 1.0),
 ) -> MotionChunks | None:
     """Chunks of ``sequence`` (module docstring) starting every ``stride`` samples; ``length`` and ``context`` whole
     numbers of ``block`` samples. None (``allow_empty``) or an ``InputError`` when no chunk is usable."""
@@ -211,6 +218,7 @@ def make_motion_chunks(
         time_reversal,
         None if vel is None else as_tensor(vel),
         drift,
+        tuple(axis_weights),
     )
 
 
@@ -227,6 +235,7 @@ def concat_motion_chunks(parts: list[MotionChunks]) -> MotionChunks:
         first.time_reversal,
         None if first.vel is None else torch.cat([p.vel for p in parts]),
         first.drift,
+        first.axis_weights,
     )
 
 

@@ -282,3 +282,32 @@ def test_drift_term_weighs_a_constant_bias_over_noise_of_the_same_size():
     torch.testing.assert_close((world @ target[..., None])[..., 0], truth, atol=1e-9, rtol=0)
     with pytest.raises(ConfigError, match="motion.drift"):
         MotionConfig(drift=-1.0)
+
+
+def test_axis_weights_leave_a_weightless_axis_out_of_both_terms():
+    """motion.axis_weights: an error on an axis of weight 0 costs nothing (squared error and drift term alike), the
+    other axes' as before; validation reads the same loss, so the weightless axis does not pick the epoch."""
+    seq = simulate("drone", duration_s=20.0, seed=3)
+    blocks_of = lambda c: c.target.shape[1]  # noqa: E731
+
+    class Offset(torch.nn.Module):
+        def __init__(self, chunks, err):
+            super().__init__()
+            self.chunks, self.err = chunks, err
+
+        def forward(self, gyro, acc, up):
+            c = self.chunks
+            vel = torch.cat([torch.zeros_like(c.target[:, : c.context_blocks]), c.target + self.err], dim=1)
+            return Motion(vel, torch.ones_like(vel))
+
+    losses = {}
+    for weights in ((1.0, 1.0, 1.0), (0.0, 1.0, 1.0)):
+        chunks = make_motion_chunks(seq, 450, 900, 90, 9, drift=2.0, axis_weights=weights).double()
+        for name, err in (("x", torch.tensor([0.3, 0.0, 0.0])), ("y", torch.tensor([0.0, 0.3, 0.0]))):
+            err = err.double().expand(len(chunks), blocks_of(chunks), 3)
+            losses[weights, name] = float(chunks.loss(Offset(chunks, err).eval(), covariance=0.0))
+    assert losses[(0.0, 1.0, 1.0), "x"] == 0.0 and losses[(1.0, 1.0, 1.0), "x"] > 0.09 / 3
+    assert losses[(0.0, 1.0, 1.0), "y"] == losses[(1.0, 1.0, 1.0), "y"] > 0.09 / 3
+    for bad in ((1.0, 1.0), (0.0, 0.0, 0.0), (1.0, -1.0, 1.0)):
+        with pytest.raises(ConfigError, match="motion.axis_weights"):
+            MotionConfig(axis_weights=bad)

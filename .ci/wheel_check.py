@@ -19,6 +19,9 @@ for name in names:
     if name == "fuse.yaml":
         assert load_fuse_config(name) == FuseConfig(), "the shipped fuse.yaml is not FuseConfig's defaults"
         continue
+    if name.startswith("fuse_"):  # a fuse config holding only what differs from the defaults
+        load_fuse_config(name)
+        continue
     config = load_pgo_config(name) if name.startswith("pgo_") else load_config(name)
     if name.startswith("pgo_"):
         assert Path(config.experiment).is_file(), (name, config.experiment)

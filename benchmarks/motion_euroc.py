@@ -95,7 +95,7 @@ def main() -> None:
         "--cov-scale", type=float, nargs="+", default=[MotionSettings.cov_scale], help="motion.cov_scale: 1 or 3"
     )
     args = parser.parse_args()
-    fuse_config = FuseConfig(motion=MotionSettings(args.keyframe_s, args.passes, _scale(args.cov_scale)))
+    fuse_config = FuseConfig(motion=MotionSettings(args.keyframe_s, args.passes, tuple(args.cov_scale)))
     model, _ = model_from_checkpoint(args.checkpoint)
     net, _ = motion_from_checkpoint(args.motion)
     config = load_config(args.config)
@@ -125,11 +125,6 @@ def main() -> None:
         print(json.dumps(result), flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
-
-
-def _scale(numbers: list[float]) -> float | tuple[float, ...]:
-    """--cov-scale as motion.cov_scale takes it: one number, or one per body axis."""
-    return numbers[0] if len(numbers) == 1 else tuple(numbers)
 
 
 if __name__ == "__main__":

@@ -166,7 +166,7 @@ def main() -> None:
     parser.add_argument("--json", help="write the rows here")
     args = parser.parse_args()
     logging.basicConfig(level=logging.ERROR)
-    motion = MotionSettings(args.keyframe_s, args.passes, _scale(args.cov_scale))
+    motion = MotionSettings(args.keyframe_s, args.passes, tuple(args.cov_scale))
     config = FuseConfig(
         gyro_noise_density=GTSAM_NOISE[0], acc_noise_density=GTSAM_NOISE[1], keyframe_s=1.0, motion=motion
     )
@@ -210,11 +210,6 @@ def main() -> None:
                 outages += outage_rows(part, net, config)
     if args.json:
         Path(args.json).write_text(json.dumps({"t_rel": rows, "outages": outages}, indent=1))
-
-
-def _scale(numbers: list[float]) -> float | tuple[float, ...]:
-    """--cov-scale as motion.cov_scale takes it: one number, or one per body axis."""
-    return numbers[0] if len(numbers) == 1 else tuple(numbers)
 
 
 if __name__ == "__main__":

@@ -176,8 +176,8 @@ class MotionSettings:
             raise ConfigError(
                 f"motion.cov_scale must be a positive factor or three (one per body axis), got {self.cov_scale!r}"
             )
-        if isinstance(scale, list):
-            object.__setattr__(self, "cov_scale", tuple(float(v) for v in scale))
+        # one number however given (a list of one from YAML or argparse), three as a tuple
+        object.__setattr__(self, "cov_scale", float(numbers[0]) if len(numbers) == 1 else tuple(map(float, numbers)))
 
 
 @dataclass(frozen=True)

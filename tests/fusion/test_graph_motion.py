@@ -191,5 +191,6 @@ def test_cov_scale_is_one_positive_number_or_three(bad):
 
     assert from_dict(FuseConfig, {"motion": {"cov_scale": [1e6, 1, 1]}}, source="t").motion.cov_scale == (1e6, 1, 1)
     assert from_dict(FuseConfig, {"motion": {"cov_scale": 3}}, source="t").motion.cov_scale == 3.0
+    assert from_dict(FuseConfig, {"motion": {"cov_scale": [3]}}, source="t").motion.cov_scale == 3.0  # as 3
     with pytest.raises(ConfigError, match="motion.cov_scale"):
         from_dict(FuseConfig, {"motion": {"cov_scale": bad}}, source="t")

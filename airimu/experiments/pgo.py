@@ -347,12 +347,7 @@ def ablate_pgo(
     experiment = load_config(config.experiment, data_root=data_root)
     if epochs:
         experiment = with_epochs(experiment, epochs)
-    run = Path(config.run)
-    from airimu.viz.recording import write_training_recording
-
-    # resumes an interrupted run, drawing its epochs into run/training.rrd; returns at once if finished
-    train_run(experiment, run, progress=progress, on_epoch=write_training_recording)
-    model, _ = model_from_checkpoint(run / "best.pt")
+    model, _ = model_from_checkpoint(correction_checkpoint(config.run, experiment, progress))
     motion = motion_from_checkpoint(config.motion)[0] if config.motion else None
     specs = config.sequences or experiment.data.evaluate or experiment.data.val
     results = []
@@ -363,6 +358,21 @@ def ablate_pgo(
         )
         results.append(SequenceResult(sequence, correction, rows, examples))
     return results
+
+
+def correction_checkpoint(run: str, experiment, progress: bool = True) -> Path:
+    """The AirIMU checkpoint of a PGO config's ``run``: a shipped model's file when ``run`` names one and is no
+    folder here (``airimu models``; nothing is trained), else ``run/best.pt``, trained -- or resumed, its epochs
+    drawn into ``run/training.rrd`` -- from ``experiment`` first (at once if finished)."""
+    from learned_imu.network.shipped import shipped_path
+
+    shipped = None if Path(run).exists() else shipped_path(run)
+    if shipped is not None:
+        return shipped
+    from airimu.viz.recording import write_training_recording
+
+    train_run(experiment, Path(run), progress=progress, on_epoch=write_training_recording)
+    return Path(run) / "best.pt"
 
 
 def paper_ate(row: PgoRow) -> float | None:

@@ -1,8 +1,9 @@
 """Typed config of the PGO ablation (``configs/pgo_*.yaml``); keys match the dataclasses one to one.
 
 ``experiment`` is the training config of the model (relative to this file); ``run`` the run folder holding its
-checkpoints (relative to the working directory, trained there -- or resumed -- when ``best.pt`` is missing);
-``motion`` an optional motion model's checkpoint (relative to the working directory, trained beforehand).
+checkpoints (relative to the working directory, trained there -- or resumed -- when ``best.pt`` is missing), or the
+name of a shipped model (``airimu models``; used as it is); ``motion`` an optional motion model's checkpoint
+(relative to the working directory, trained beforehand) or a shipped one's name.
 ``sequences`` default to the experiment's evaluation sequences (``data.evaluate``, else ``data.val``) and are
 read relative to its data root.
 """

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from collections import Counter
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -165,3 +166,19 @@ def test_motion_rows_run_on_the_solution_attitude_and_beat_their_rows_between_sp
     assert set(ate) >= {"AirIMU + learned cov + motion", "raw IMU + fixed cov + motion"}
     assert len(calls) == 4  # two motion rows x two passes
     assert ate["raw IMU + fixed cov + motion"] < 0.2 * ate["raw IMU + fixed cov"], ate  # measured 0.23 m against 4.2 m
+
+
+def test_a_pgo_run_may_name_a_shipped_model(tmp_path, monkeypatch):
+    """PgoConfig.run: a shipped model's name (no folder of that name here) is used as it is, nothing trained; a
+    folder is trained or resumed, as before."""
+    import airimu.experiments.pgo as pgo
+    from learned_imu.network.shipped import shipped_path
+
+    trained = []
+    monkeypatch.setattr(pgo, "train_run", lambda experiment, run, **_: trained.append(run))
+    monkeypatch.chdir(tmp_path)
+    assert pgo.correction_checkpoint("euroc", experiment=None) == shipped_path("euroc") and not trained
+    (tmp_path / "euroc").mkdir()  # a run folder of that name wins
+    assert pgo.correction_checkpoint("euroc", experiment=None) == Path("euroc") / "best.pt"
+    assert pgo.correction_checkpoint("runs/mine", experiment=None) == Path("runs/mine") / "best.pt"
+    assert trained == [Path("euroc"), Path("runs/mine")]

@@ -24,7 +24,9 @@ ATE against the OXTS ground truth between the first and the last fused fix, unal
 ``--outages``: GPS outages of 30 / 60 / 120 s at five places of each sequence (evenly spread over its middle), 1-Hz
 fixes from the ground truth with 0.3 m noise elsewhere; the mean position error at the end of the outage (the log
 solved up to then, ``airimu fuse --gps-outage``) for GTSAM's settings (raw IMU, its noise and bias states), the raw
-IMU with its fixed noise, and that + the motion factor.
+IMU with its fixed noise, and that + the motion factor; with ``--correction N CHECKPOINT`` (fold N's AirIMU model,
+``configs/kitti_fold*.yaml``) also its corrected samples with their learned covariance (``airimu``), and that + the
+motion factor (``airimu_motion``), in both tables.
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ from airimu_core.errors import InputError
 from fusion.config import FuseConfig, MotionSettings
 from learned_imu.config import load_config
 from learned_imu.evaluation.kitti_odometry import relative_errors, subsample_indices
-from learned_imu.network.checkpoint import motion_from_checkpoint
+from learned_imu.network.checkpoint import model_from_checkpoint, motion_from_checkpoint
 from learned_imu.training.experiment import load_sequences
 
 # AI-IMU (Brossard et al. 2020), Table I and its text: t_rel (%) per KITTI odometry sequence; and its ranges
@@ -96,14 +98,19 @@ def ticks_10hz(t: np.ndarray) -> np.ndarray:
         return np.unique(nearest[np.abs(t[nearest] - ticks) < 0.05])
 
 
-def outage_rows(seq, net, motion_config: FuseConfig) -> list[dict]:
-    """Mean error at the end of ``OUTAGE_PLACES`` outages of each length, per setting (module docstring)."""
+def outage_rows(seq, net, motion_config: FuseConfig, correction=None) -> list[dict]:
+    """Mean error at the end of ``OUTAGE_PLACES`` outages of each length, per setting (module docstring);
+    ``correction``: the fold's AirIMU model, for the two rows with its corrected samples and learned covariance."""
     span = float(seq.t[-1] - seq.t[0])
     fixes = gps_for(seq, 1.0, GPS_SIGMA_M, seed=0, source="simulated")[0]  # 1-Hz fixes from the ground truth
     raw = FuseConfig(gyro_noise_density=GTSAM_NOISE[0], acc_noise_density=GTSAM_NOISE[1], keyframe_s=1.0)
     gtsam_like = dataclasses.replace(raw, estimate_bias=True, bias=GTSAM_EXAMPLE.bias)
     settings = {"GTSAM settings": (gtsam_like, None), "raw IMU": (raw, None)}
     settings["raw IMU + motion"] = (dataclasses.replace(raw, motion=motion_config.motion), net)
+    if correction is not None:
+        learned = FuseConfig(keyframe_s=1.0)  # the noise is the model's
+        settings["AirIMU"] = (learned, None)
+        settings["AirIMU + motion"] = (dataclasses.replace(learned, motion=motion_config.motion), net)
     rows = []
     for duration in OUTAGES_S:
         if span < duration + 20.0:
@@ -112,7 +119,8 @@ def outage_rows(seq, net, motion_config: FuseConfig) -> list[dict]:
         outages = tuple((float(s), duration) for s in starts)
         row = {"sequence": seq.name, "outage_s": duration}
         for name, (config, model) in settings.items():
-            result = fuse(seq, fixes, None, config, motion_model=model, start="ground-truth", outages=outages)
+            airimu = correction if name.startswith("AirIMU") else None
+            result = fuse(seq, fixes, airimu, config, motion_model=model, start="ground-truth", outages=outages)
             ends = [np.linalg.norm(pos - seq.gt.pos[np.searchsorted(seq.t, t)]) for t, pos in result.outage_ends]
             row[name] = round(float(np.mean(ends)), 3)
         rows.append(row)
@@ -152,6 +160,10 @@ def gtsam_drive_rows(net, root: Path, motion: MotionSettings) -> list[dict]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--fold", nargs=2, action="append", metavar=("N", "CHECKPOINT"), required=True)
+    parser.add_argument(
+        "--correction", nargs=2, action="append", default=[], metavar=("N", "CHECKPOINT"),
+        help="fold N's AirIMU model (configs/kitti_fold*.yaml): adds its rows",
+    )  # fmt: skip
     parser.add_argument("--only", nargs="*", help="sequences to run (default: all of the folds given)")
     parser.add_argument("--keyframe-s", type=float, default=MotionSettings.keyframe_s, help="motion.keyframe_s")
     parser.add_argument("--passes", type=int, default=MotionSettings.passes, help="motion.passes")
@@ -178,8 +190,12 @@ def main() -> None:
         args.fold = []
     for fold, checkpoint in args.fold:
         net, trained = motion_from_checkpoint(checkpoint)
-        fold_config = load_config(f"configs/kitti_motion_fold{fold}.yaml")
         trained_on = {spec.path for spec in trained.data.train}
+        correction = None
+        if fold in dict(args.correction):
+            correction, corrected_by = model_from_checkpoint(dict(args.correction)[fold])
+            trained_on |= {spec.path for spec in corrected_by.data.train}
+        fold_config = load_config(f"configs/kitti_motion_fold{fold}.yaml")
         if args.validate:
             for seq in load_sequences(fold_config.data.val, fold_config.data.root):
                 part = dataclasses.replace(seq, gps=None)
@@ -203,11 +219,17 @@ def main() -> None:
             row = {"sequence": name, "drive": drive, "fold": fold, "ai_imu_t_rel_percent": ai_imu}
             row["imu"] = scores(part, fuse(part, None, None, config, start="ground-truth"))
             row["motion"] = scores(part, fuse(part, None, None, config, motion_model=net, start="ground-truth"))
+            if correction is not None:
+                learned = FuseConfig(keyframe_s=1.0, motion=motion)
+                row["airimu"] = scores(part, fuse(part, None, correction, learned, start="ground-truth"))
+                row["airimu_motion"] = scores(
+                    part, fuse(part, None, correction, learned, motion_model=net, start="ground-truth")
+                )
             row["seconds"] = round(time.perf_counter() - start, 1)
             rows.append(row)
             print(json.dumps(row), flush=True)
             if args.outages:
-                outages += outage_rows(part, net, config)
+                outages += outage_rows(part, net, config, correction)
     if args.json:
         Path(args.json).write_text(json.dumps({"t_rel": rows, "outages": outages}, indent=1))
 

@@ -271,8 +271,13 @@ def _lm_step(total_error, linear, values, error, lam, params, damping: _Damping,
     """GTSAM's ``tryLambda`` loop: (new values, new error, next lambda), or (None, error, lambda) to stop."""
     old_linear_error = linear.error(values.zeroVectors())
     while True:
-        delta = damping.damped(linear, lam).optimize(ordering)
-        linear_change = old_linear_error - linear.error(delta)
+        try:
+            delta = damping.damped(linear, lam).optimize(ordering)
+        except RuntimeError as failure:  # GTSAM's tryLambda: an indeterminate damped system is a failed try
+            if "Indeterminant" not in str(failure) and "Indeterminate" not in str(failure):
+                raise
+            delta = None
+        linear_change = -1.0 if delta is None else old_linear_error - linear.error(delta)
         if linear_change >= 0:
             new_values = values.retract(delta)
             new_error = total_error(new_values)

@@ -15,6 +15,7 @@ graph re-preintegrated from the samples at the converged biases (``tests/factors
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import gtsam
@@ -53,6 +54,7 @@ def solve_relinearised(
     tol: float = 1e-6,
     max_rounds: int = 10,
     lm_params: gtsam.LevenbergMarquardtParams | None = None,
+    optimize: Callable[[gtsam.NonlinearFactorGraph, gtsam.Values], gtsam.Values] | None = None,
 ) -> Relinearised:
     """Solve ``graph`` from ``values`` with its IMU factors re-preintegrated around the solved biases until they
     settle (module docstring).
@@ -65,6 +67,8 @@ def solve_relinearised(
         tol: stop when no bias component moved more than this in a round (rad/s, m/s^2).
         max_rounds: at most this many solves.
         lm_params: Levenberg-Marquardt's settings (default GTSAM's).
+        optimize: each solve, ``(graph, initial) -> solved values`` (default: GTSAM's LM with ``lm_params``); e.g.
+            ``fusion.graph``'s route for graphs with Python factors, ``solve_with_python_factors``.
     """
     if max_rounds < 1 or not tol > 0:
         raise ValueError(f"solve_relinearised: need max_rounds >= 1 and tol > 0, got {max_rounds} and {tol}")
@@ -79,8 +83,13 @@ def solve_relinearised(
     if imu != intervals:
         raise ValueError(f"solve_relinearised: the graph has {imu} IMU factors, the export {intervals} intervals")
     lm_params = lm_params or gtsam.LevenbergMarquardtParams()
+    if optimize is None:
+
+        def optimize(graph, initial):
+            return gtsam.LevenbergMarquardtOptimizer(graph, initial, lm_params).optimize()
+
     current, change, solves = graph, np.inf, 1
-    solved = solve_or_explain(gtsam.LevenbergMarquardtOptimizer(current, values, lm_params).optimize)
+    solved = solve_or_explain(lambda: optimize(current, values))
     while solves < max_rounds:
         before = solved
         factors, _ = from_export(
@@ -95,7 +104,7 @@ def solve_relinearised(
         current = gtsam.NonlinearFactorGraph()
         for item in [others.at(i) for i in range(others.size())] + factors:
             current.add(item)
-        solved = solve_or_explain(gtsam.LevenbergMarquardtOptimizer(current, before, lm_params).optimize)
+        solved = solve_or_explain(lambda at=before, graph=current: optimize(graph, at))
         solves += 1
         change = max(_moved(solved, before, bias_key(k)) for k in range(intervals + 1))
         if change < tol:

@@ -310,16 +310,24 @@ def solve(
     """Levenberg-Marquardt on the graph; the keyframe states as a ``Trajectory``."""
     settings = settings or FusionSettings()
     params = lm_params(settings)
-    if settings.backend == "gtsam" and any(isinstance(graph.at(i), MotionFactor) for i in range(graph.size())):
-        # Python factors inside GTSAM's own LM get a copy of all values per call (factors.motion): stepped from Python,
-        # the motion factors evaluated together in numpy (MotionTerms); the returned graph keeps them
-        rest, motion = split_motion_factors(graph)
-        extra = (MotionTerms(motion),) if motion else ()
-        done = solve_or_explain(lambda: solve_with_python_factors(rest, values, params, extra=extra))
+    if settings.backend == "gtsam" and has_motion_factors(graph):
+        done = solve_or_explain(lambda: solve_motion_graph(graph, values, params))
         return Solution(trajectory_of(done.values, times), graph, done.values, done.iterations, done.error)
     optimiser = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
     result = solve_or_explain(optimiser.optimize)
     return Solution(trajectory_of(result, times), graph, result, optimiser.iterations(), graph.error(result))
+
+
+def has_motion_factors(graph: gtsam.NonlinearFactorGraph) -> bool:
+    return any(isinstance(graph.at(i), MotionFactor) for i in range(graph.size()))
+
+
+def solve_motion_graph(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, params: gtsam.LevenbergMarquardtParams):
+    """GTSAM's LM on a graph with ``MotionFactor``s: Python factors inside GTSAM's own LM get a copy of all values per
+    call (``factors.motion``), so it is stepped from Python with the motion factors evaluated together in numpy
+    (``MotionTerms``); ``factors.motion.solve_with_python_factors``' result."""
+    rest, motion = split_motion_factors(graph)
+    return solve_with_python_factors(rest, values, params, extra=(MotionTerms(motion),) if motion else ())
 
 
 def split_motion_factors(graph: gtsam.NonlinearFactorGraph) -> tuple[gtsam.NonlinearFactorGraph, list[MotionFactor]]:

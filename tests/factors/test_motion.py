@@ -186,6 +186,27 @@ def test_motion_terms_in_the_python_driven_lm_equal_the_factors_in_gtsam_lm():
         np.testing.assert_allclose(ours.values.atVector(V(k)), reference.atVector(V(k)), atol=1e-9)
 
 
+def test_python_driven_lm_retries_an_indeterminate_damped_system_with_more_damping(monkeypatch):
+    """GTSAM's tryLambda: a damped system that elimination calls indeterminate is a failed try (lambda grows), not
+    the end of the solve; the result is the one without the failure."""
+    import factors.motion as module
+
+    base, motion, initial, _ = imu_gps_motion_graph(20, seed=7)
+    reference = solve_with_python_factors(base, initial, extra=(MotionTerms(motion),))
+    real, tries = module._Damping.damped, []
+
+    def failing_first(self, linear, lam):
+        tries.append(lam)
+        if len(tries) == 1:  # what GTSAM's Cholesky raises on a tiny pivot
+            raise RuntimeError("Indeterminant linear system detected while working near variable 1 (Symbol: x1).")
+        return real(self, linear, lam)
+
+    monkeypatch.setattr(module._Damping, "damped", failing_first)
+    ours = solve_with_python_factors(base, initial, extra=(MotionTerms(motion),))
+    assert tries[1] == pytest.approx(tries[0] * gtsam.LevenbergMarquardtParams().getlambdaFactor())
+    assert ours.error == pytest.approx(reference.error, rel=1e-6)
+
+
 def test_motion_terms_name_a_missing_state():
     terms = MotionTerms(motion_factors(np.zeros((2, 3)), np.ones((2, 3)), keys=[3, 7]))
     values = gtsam.Values()

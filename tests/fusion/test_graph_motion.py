@@ -194,3 +194,22 @@ def test_cov_scale_is_one_positive_number_or_three(bad):
     assert from_dict(FuseConfig, {"motion": {"cov_scale": [3]}}, source="t").motion.cov_scale == 3.0  # as 3
     with pytest.raises(ConfigError, match="motion.cov_scale"):
         from_dict(FuseConfig, {"motion": {"cov_scale": bad}}, source="t")
+
+
+def test_bias_states_with_motion_factors_solve_on_the_python_stepped_route(drone, monkeypatch):
+    """With bias states the export graph is re-linearised (``factors.solve_relinearised``); its motion factors are
+    then solved by ``fusion.graph.solve_motion_graph`` (10-25x faster than GTSAM's LM calling them back), to the
+    same solution."""
+    import fusion.solve as module
+
+    seq, export = drone
+    config, motion = FuseConfig(estimate_bias=True), body_velocities(seq)
+    calls, real = [], module.solve_motion_graph
+    monkeypatch.setattr(module, "solve_motion_graph", lambda *args: calls.append(1) or real(*args))
+    fast, _ = module.solve_export(export, None, config, motion=motion)
+    assert calls  # every round of the re-linearisation
+    monkeypatch.setattr(module, "fast_route", lambda graph, params: None)  # GTSAM's LM with the callbacks
+    slow, _ = module.solve_export(export, None, config, motion=motion)
+    assert len(calls) == fast.iterations  # the slow route did not call it
+    np.testing.assert_allclose(fast.trajectory.pos, slow.trajectory.pos, atol=1e-6)
+    assert position_rmse(fast, seq) < 1.0

@@ -163,6 +163,26 @@ def gtsam_drive_rows(net, root: Path, motion: MotionSettings) -> list[dict]:
     return rows
 
 
+def gtsam_validation_rows(net, fold_config, motion: MotionSettings) -> list[dict]:
+    """``--gtsam-drive --validate``: the ``--gtsam-drive`` rows on fold 1's validation drives (which its model never
+    saw), 1-Hz fixes simulated from the truth (``GPS_SIGMA_M``), one in ten fused, from the ground-truth start: ATE
+    between the first and the last fused fix, for choosing the motion settings of that row without its drive."""
+    rows = []
+    for seq in load_sequences(fold_config.data.val, fold_config.data.root):
+        fixes = gps_for(seq, 1.0, GPS_SIGMA_M, seed=0, source="simulated")[0]
+        fused = fixes[np.arange(len(fixes.t)) % 10 == 0]
+        row = {"sequence": seq.name, "validation": True}
+        for name, model in (("raw IMU", None), ("raw IMU + motion", net)):
+            config = FuseConfig(keyframe_s=1.0, motion=motion)
+            dense = imu_rate_trajectory(fuse(seq, fused, None, config, motion_model=model, start="ground-truth"))
+            at = np.searchsorted(seq.t, dense.t)
+            keep = seq.gt.valid[at] & (dense.t >= fused.t[0]) & (dense.t <= fused.t[-1])
+            row[name] = round(float(np.sqrt(np.mean(np.sum((dense.pos[keep] - seq.gt.pos[at[keep]]) ** 2, 1)))), 3)
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--fold", nargs=2, action="append", metavar=("N", "CHECKPOINT"), required=True)
@@ -190,9 +210,12 @@ def main() -> None:
     )
     rows, outages = [], []
     if args.gtsam_drive:
-        checkpoint = dict(args.fold)["1"]
-        root = Path(load_config("configs/kitti_motion_fold1.yaml").data.root)
-        rows = gtsam_drive_rows(motion_from_checkpoint(checkpoint)[0], root, motion)
+        net = motion_from_checkpoint(dict(args.fold)["1"])[0]
+        fold_config = load_config("configs/kitti_motion_fold1.yaml")
+        if args.validate:
+            rows = gtsam_validation_rows(net, fold_config, motion)
+        else:
+            rows = gtsam_drive_rows(net, Path(fold_config.data.root), motion)
         args.fold = []
     for fold, checkpoint in args.fold:
         net, trained = motion_from_checkpoint(checkpoint)

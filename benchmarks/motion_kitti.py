@@ -134,8 +134,10 @@ def outage_rows(seq, net, motion_config: FuseConfig, correction=None) -> list[di
     return rows
 
 
-def gtsam_drive_rows(net, root: Path, motion: MotionSettings) -> list[dict]:
-    """The ``--gtsam-drive`` rows (module docstring); ``motion``: the motion factors' settings (``--cov-scale``)."""
+def gtsam_drive_rows(net, root: Path, motion: MotionSettings, correction=None, every: int = 10) -> list[dict]:
+    """The ``--gtsam-drive`` rows (module docstring); ``motion``: the motion factors' settings (``--cov-scale``);
+    ``correction``: fold 1's AirIMU model, for two more rows with its corrected samples and learned noise; ``every``:
+    one fix in this many fused."""
     from learned_imu.datasets import read_sequence
 
     seq = read_sequence(
@@ -143,10 +145,13 @@ def gtsam_drive_rows(net, root: Path, motion: MotionSettings) -> list[dict]:
         on_gap="keep", gps_file=root / "kitti_gtsam/KittiGps_converted.txt",
     )  # fmt: skip
     gps = seq.gps
-    fused = gps[np.arange(len(gps.t)) % 10 == 0]
+    fused = gps[np.arange(len(gps.t)) % every == 0]
     rows = []
-    for name, model in (("raw IMU", None), ("raw IMU + motion", net)):
-        result = fuse(seq, fused, None, FuseConfig(keyframe_s=1.0, motion=motion), motion_model=model)
+    settings = [("raw IMU", None, None), ("raw IMU + motion", None, net)]
+    if correction is not None:
+        settings += [("AirIMU", correction, None), ("AirIMU + motion", correction, net)]
+    for name, airimu, model in settings:
+        result = fuse(seq, fused, airimu, FuseConfig(keyframe_s=1.0, motion=motion), motion_model=model)
         keyframes = result.solution.trajectory
         inside = (gps.t >= keyframes.t[0]) & (gps.t <= keyframes.t[-1])
         at_fix = np.column_stack([np.interp(gps.t[inside], keyframes.t, keyframes.pos[:, i]) for i in range(3)])
@@ -201,6 +206,7 @@ def main() -> None:
     parser.add_argument(
         "--validate", action="store_true", help="score the folds' validation drives (whole) instead: for settings"
     )
+    parser.add_argument("--fix-every", type=int, default=10, help="--gtsam-drive: one fix in this many (default 10)")
     parser.add_argument("--json", help="write the rows here")
     args = parser.parse_args()
     logging.basicConfig(level=logging.ERROR)
@@ -215,7 +221,12 @@ def main() -> None:
         if args.validate:
             rows = gtsam_validation_rows(net, fold_config, motion)
         else:
-            rows = gtsam_drive_rows(net, Path(fold_config.data.root), motion)
+            correction = None
+            if "1" in dict(args.correction):
+                correction, corrected_by = model_from_checkpoint(dict(args.correction)["1"])
+                if any("2011_10_03_drive_0027" in spec.path for spec in corrected_by.data.train):
+                    raise SystemExit(f"{dict(args.correction)['1']} was trained on GTSAM's drive")
+            rows = gtsam_drive_rows(net, Path(fold_config.data.root), motion, correction, args.fix_every)
         args.fold = []
     for fold, checkpoint in args.fold:
         net, trained = motion_from_checkpoint(checkpoint)

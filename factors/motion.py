@@ -199,11 +199,11 @@ def solve_with_python_factors(
     """``gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()``, stepped from Python so that Python
     factors (``MotionFactor``, ``LearnedImuFactor``) get the ``Values`` by reference instead of a copy each
     (module docstring). GTSAM's rules: COLAMD ordering (of ``graph``), identity damping ``sqrt(lambda) I`` per
-    variable, multifrontal Cholesky, a step kept when the model fidelity exceeds ``minModelFidelity`` (then
-    lambda / factor), else lambda * factor up to ``lambdaUpperBound``; stop on the relative / absolute decrease or
-    ``maxIterations``. Only those default modes: diagonal damping, an adaptive lambda factor, another linear solver
-    or ordering raise. (GTSAM 4.3's own LM eliminates in place, which Python cannot call: on a 1,000-keyframe
-    IMU + GPS graph this loop takes ~1.4x its time.)
+    variable, multifrontal Cholesky (or QR, as ``params`` say; an indeterminate damped system is a failed try), a
+    step kept when the model fidelity exceeds ``minModelFidelity`` (then lambda / factor), else lambda * factor up to
+    ``lambdaUpperBound``; stop on the relative / absolute decrease or ``maxIterations``. Only those modes: diagonal
+    damping, an adaptive lambda factor, another linear solver or ordering raise. (GTSAM 4.3's own LM eliminates in
+    place, which Python cannot call: on a 1,000-keyframe IMU + GPS graph this loop takes ~1.4x its time.)
 
     ``extra``: terms evaluated in bulk besides ``graph``, each with ``error(values) -> float`` and
     ``linearize(values) -> gtsam.GaussianFactorGraph`` (whitened, as a factor's ``linearize`` gives it)."""
@@ -211,12 +211,12 @@ def solve_with_python_factors(
     if (
         params.getDiagonalDamping()
         or not params.getUseFixedLambdaFactor()
-        or params.getLinearSolverType() != "MULTIFRONTAL_CHOLESKY"
+        or params.getLinearSolverType() not in ("MULTIFRONTAL_CHOLESKY", "MULTIFRONTAL_QR")
         or params.getOrderingType() != "COLAMD"
     ):
         raise InputError(
             "solve_with_python_factors: only GTSAM's default LM modes (identity damping, fixed lambda factor, "
-            "MULTIFRONTAL_CHOLESKY, COLAMD); use gtsam.LevenbergMarquardtOptimizer for the others"
+            "MULTIFRONTAL_CHOLESKY or _QR, COLAMD); use gtsam.LevenbergMarquardtOptimizer for the others"
         )
 
     def total_error(at: gtsam.Values) -> float:
@@ -269,10 +269,15 @@ class _Damping:
 
 def _lm_step(total_error, linear, values, error, lam, params, damping: _Damping, ordering):
     """GTSAM's ``tryLambda`` loop: (new values, new error, next lambda), or (None, error, lambda) to stop."""
+    qr = params.getLinearSolverType() == "MULTIFRONTAL_QR"
     old_linear_error = linear.error(values.zeroVectors())
     while True:
         try:
-            delta = damping.damped(linear, lam).optimize(ordering)
+            damped = damping.damped(linear, lam)
+            if qr:
+                delta = damped.eliminateMultifrontal(ordering, gtsam.EliminateQR).optimize()
+            else:
+                delta = damped.optimize(ordering)
         except RuntimeError as failure:  # GTSAM's tryLambda: an indeterminate damped system is a failed try
             if "Indeterminant" not in str(failure) and "Indeterminate" not in str(failure):
                 raise

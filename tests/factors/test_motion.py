@@ -186,6 +186,17 @@ def test_motion_terms_in_the_python_driven_lm_equal_the_factors_in_gtsam_lm():
         np.testing.assert_allclose(ours.values.atVector(V(k)), reference.atVector(V(k)), atol=1e-9)
 
 
+def test_python_driven_lm_with_qr_equals_gtsam_lm_with_qr():
+    base, motion, initial, truth = imu_gps_motion_graph(30, seed=8)
+    params = gtsam.LevenbergMarquardtParams()
+    params.setLinearSolverType("MULTIFRONTAL_QR")
+    reference = gtsam.LevenbergMarquardtOptimizer(with_factors(base, motion), initial, params).optimize()
+    ours = solve_with_python_factors(base, initial, params, extra=(MotionTerms(motion),))
+    assert ours.error == pytest.approx(with_factors(base, motion).error(reference), rel=1e-9)
+    for k in range(len(truth)):
+        assert ours.values.atPose3(X(k)).equals(reference.atPose3(X(k)), 1e-8)
+
+
 def test_python_driven_lm_retries_an_indeterminate_damped_system_with_more_damping(monkeypatch):
     """GTSAM's tryLambda: a damped system that elimination calls indeterminate is a failed try (lambda grows), not
     the end of the solve; the result is the one without the failure."""

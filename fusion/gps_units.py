@@ -101,6 +101,7 @@ SCALE_MIN_SIGNIFICANCE = 5.0  # a scale at least this many standard errors from 
 VERTICAL_MIN_ROWS = 30
 VERTICAL_MIN_R2 = 0.75  # the track's climb must follow the IMU's tilt this closely (a ground vehicle, a hilly road)
 HEADING_MIN_R2 = 0.5  # the track's turns must follow the gyro's this closely (a vehicle that turns where it heads)
+MAX_CHORD_SPANS = 2.0  # heading_scale's chords: at most this many times their median duration (none over a gap)
 
 
 @dataclass(frozen=True)
@@ -159,7 +160,8 @@ def vertical_scale(sequence: ImuSequence, fixes: GpsFixes) -> TrackScale | None:
 def heading_scale(sequence: ImuSequence, fixes: GpsFixes) -> TrackScale | None:
     """How many times the GPS track turns as far as the gyro says, for a vehicle that heads where it goes (a car, a
     fixed-wing): the change of the track's course from one chord (consecutive fixes ``SPACING_S`` or more apart,
-    both at ``MIN_SPEED_M_S`` or faster) to the next, regressed through 0 on the change of the gyro's heading
+    but not across a gap: at most ``MAX_CHORD_SPANS`` times the median chord; both at ``MIN_SPEED_M_S`` or faster)
+    to the next, regressed through 0 on the change of the gyro's heading
     averaged over the same chords (the rate about the up axis, up from the accelerometer averaged over +-1 s; the
     gyro's median taken out first). 1 for a gyro in rad/s; pi/180 for one in deg/s read as rad/s, 1e-3 for mrad/s,
     180/pi for rad/s converted as if deg/s; -1 for a gyro whose sign is flipped. None with fewer than
@@ -184,7 +186,11 @@ def heading_scale(sequence: ImuSequence, fixes: GpsFixes) -> TrackScale | None:
     at = np.interp(t, sequence.t, area)
     mean_heading = np.diff(at) / np.diff(t)  # over each chord
     chord = np.diff(pos[:, :2], axis=0)
-    fast = np.linalg.norm(chord, axis=1) / np.diff(t) >= MIN_SPEED_M_S
+    span = np.diff(t)
+    # a chord over a gap of the fixes (an outage) may hold a whole turn, which the course's wrap to (-pi, pi] can
+    # flip: KITTI seq 06 (2011_09_30_drive_0020) with fixes missing for 60 s from 27.6 s read as a gyro of the
+    # wrong sign (slope -1.04, R^2 0.98, from that one pair of chords)
+    fast = (np.linalg.norm(chord, axis=1) / span >= MIN_SPEED_M_S) & (span <= MAX_CHORD_SPANS * np.median(span))
     course = np.arctan2(chord[:, 1], chord[:, 0])
     pair = fast[1:] & fast[:-1]
     turn = np.angle(np.exp(1j * np.diff(course)))[pair]

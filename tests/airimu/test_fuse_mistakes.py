@@ -575,6 +575,31 @@ def test_a_car_gyro_shrunk_57x_or_negated_is_refused_by_the_tracks_turns(shared_
         check_imu_units(dataclasses.replace(blind, gyro=-blind.gyro), fixes, "imu.csv")
 
 
+def test_a_gps_outage_over_a_turn_does_not_read_as_a_flipped_gyro(shared_data):
+    """KITTI seq 06 (2011_09_30_drive_0020) with 1-Hz fixes and none for 60 s from 27.6 s: the chord over the gap
+    held a whole turn, which the course's wrap flipped, and that one pair of chords refused the right gyro as
+    "sign flipped" (slope -1.04, R^2 0.98). Chords over a gap are left out: accepted, and a flipped gyro still
+    refused."""
+    from airimu.experiments.pgo import gps_for
+    from airimu.fuse import _outside_outages, check_imu_units
+    from fusion.gps_units import heading_scale
+    from learned_imu.datasets import read_sequence
+
+    seq = read_sequence(
+        "kitti_raw", shared_data / "kitti_raw/2011_09_30_drive_0020.csv", on_backward="drop", on_duplicate="drop",
+        on_gap="keep",
+    )  # fmt: skip
+    seq = seq.between(seq.t[0], seq.t[0] + 113.4)  # AI-IMU's seq 06 range (rows 0-11347)
+    fixes = _outside_outages(gps_for(seq, 1.0, 0.3, seed=0, source="simulated")[0], seq.t[0], ((27.6, 60.0),))
+    blind = dataclasses.replace(seq, gt=None, gps=None)
+    found = heading_scale(blind, fixes)
+    assert found is not None and not (found.decided and found.scale < 0), found
+    check_imu_units(blind, fixes, "imu.csv")
+    flipped = dataclasses.replace(blind, gyro=-blind.gyro)
+    with pytest.raises(DataError, match=r"field 'gyro'.*sign is flipped"):
+        check_imu_units(flipped, gps_for(seq, 1.0, 0.3, seed=0, source="simulated")[0], "imu.csv")
+
+
 def test_the_gyro_unit_check_is_quiet_on_euroc_and_skips_sparse_fixes(shared_data):
     """EuRoC's raw gyro (biased: as read it explains the track worse than no rotation at all, before its median is
     taken out) is accepted with 1-Hz fixes; with a fix every 10 s the check does not run."""

@@ -26,8 +26,8 @@ fixes from the ground truth with 0.3 m noise elsewhere; the mean position error 
 solved up to then, ``airimu fuse --gps-outage``) for GTSAM's settings (raw IMU, its noise and bias states), the raw
 IMU with its fixed noise, and that + the motion factor; with ``--correction N CHECKPOINT`` (fold N's AirIMU model,
 ``configs/kitti_fold*.yaml``) also its corrected samples with their learned covariance (``airimu``), and that + the
-motion factor (``airimu_motion``), in both tables; an outage row where ``airimu fuse`` refuses the model (its samples
-explain the GPS track far worse than the raw ones) says "refused".
+motion factor (``airimu_motion``), in these tables and ``--gtsam-drive``'s (fold 1's model); an outage row where
+``airimu fuse`` refuses the model (its samples explain the GPS track far worse than the raw ones) says "refused".
 """
 
 from __future__ import annotations
@@ -155,17 +155,23 @@ def gtsam_drive_rows(net, root: Path, motion: MotionSettings, correction=None, e
         keyframes = result.solution.trajectory
         inside = (gps.t >= keyframes.t[0]) & (gps.t <= keyframes.t[-1])
         at_fix = np.column_stack([np.interp(gps.t[inside], keyframes.t, keyframes.pos[:, i]) for i in range(3)])
-        dense = imu_rate_trajectory(result)
-        at = np.searchsorted(seq.t, dense.t)
-        keep = seq.gt.valid[at] & (dense.t >= fused.t[0]) & (dense.t <= fused.t[-1])
         row = {
             "row": name,
             "rmse_to_gps_m": round(float(np.sqrt(np.mean(np.sum((at_fix - gps.pos[inside]) ** 2, 1)))), 3),
-            "ate_m": round(float(np.sqrt(np.mean(np.sum((dense.pos[keep] - seq.gt.pos[at[keep]]) ** 2, 1)))), 3),
+            "ate_m": ate_between_fixes(seq, result, fused),
         }
         rows.append(row)
         print(json.dumps(row), flush=True)
     return rows
+
+
+def ate_between_fixes(seq, result, fused) -> float:
+    """ATE (m, unaligned) of a fused result's IMU-rate track against the ground truth between the first and the last
+    fused fix."""
+    dense = imu_rate_trajectory(result)
+    at = np.searchsorted(seq.t, dense.t)
+    keep = seq.gt.valid[at] & (dense.t >= fused.t[0]) & (dense.t <= fused.t[-1])
+    return round(float(np.sqrt(np.mean(np.sum((dense.pos[keep] - seq.gt.pos[at[keep]]) ** 2, 1)))), 3)
 
 
 def gtsam_validation_rows(net, fold_config, motion: MotionSettings) -> list[dict]:
@@ -177,12 +183,10 @@ def gtsam_validation_rows(net, fold_config, motion: MotionSettings) -> list[dict
         fixes = gps_for(seq, 1.0, GPS_SIGMA_M, seed=0, source="simulated")[0]
         fused = fixes[np.arange(len(fixes.t)) % 10 == 0]
         row = {"sequence": seq.name, "validation": True}
+        config = FuseConfig(keyframe_s=1.0, motion=motion)
         for name, model in (("raw IMU", None), ("raw IMU + motion", net)):
-            config = FuseConfig(keyframe_s=1.0, motion=motion)
-            dense = imu_rate_trajectory(fuse(seq, fused, None, config, motion_model=model, start="ground-truth"))
-            at = np.searchsorted(seq.t, dense.t)
-            keep = seq.gt.valid[at] & (dense.t >= fused.t[0]) & (dense.t <= fused.t[-1])
-            row[name] = round(float(np.sqrt(np.mean(np.sum((dense.pos[keep] - seq.gt.pos[at[keep]]) ** 2, 1)))), 3)
+            result = fuse(seq, fused, None, config, motion_model=model, start="ground-truth")
+            row[name] = ate_between_fixes(seq, result, fused)
         rows.append(row)
         print(json.dumps(row), flush=True)
     return rows

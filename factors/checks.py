@@ -72,13 +72,18 @@ def check_anchored(graph: gtsam.NonlinearFactorGraph) -> None:
         )
 
 
+def is_indeterminate(error: RuntimeError) -> bool:
+    """GTSAM's ``IndeterminantLinearSystemException`` as Python sees it (a ``RuntimeError``, by its message)."""
+    return "Indeterminate" in str(error) or "Indeterminant" in str(error)
+
+
 def solve_or_explain(optimise: Callable[[], gtsam.Values]) -> gtsam.Values:
     """Run ``optimise`` (e.g. ``optimizer.optimize``); GTSAM's indeterminate-system error becomes a ``GraphError``
     that names the state and the usual causes."""
     try:
         return optimise()
     except RuntimeError as error:
-        if "Indeterminate" not in str(error) and "Indeterminant" not in str(error):
+        if not is_indeterminate(error):
             raise
         near = re.search(r"Symbol: (\w+)\)", str(error))
         where = f"near {near.group(1)}" if near else "somewhere in the graph"

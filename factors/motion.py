@@ -30,7 +30,7 @@ import numpy as np
 
 from airimu_core.checks import SYMMETRY_TOL
 from airimu_core.errors import GraphError, InputError, real_array
-from factors.checks import key_name
+from factors.checks import is_indeterminate, key_name
 
 # GTSAM's LevenbergMarquardtParams.minModelFidelity default (its Python params have no getter): a step is kept when
 # the actual decrease is above this fraction of the linearised model's
@@ -224,13 +224,23 @@ def solve_with_python_factors(
 
     values = gtsam.Values(initial)  # owned by Python: the callbacks get it by reference
     ordering = graph.orderingCOLAMD()
+    if params.getLinearSolverType() == "MULTIFRONTAL_QR":
+
+        def solve_linear(system):
+            return system.eliminateMultifrontal(ordering, gtsam.EliminateQR).optimize()
+
+    else:
+
+        def solve_linear(system):
+            return system.optimize(ordering)
+
     damping = _Damping(values)
     lam, error, iterations = params.getlambdaInitial(), total_error(values), 0
     while iterations < params.getMaxIterations() and error > params.getErrorTol():
         linear = graph.linearize(values)
         for term in extra:
             linear.push_back(term.linearize(values))
-        new_values, new_error, lam = _lm_step(total_error, linear, values, error, lam, params, damping, ordering)
+        new_values, new_error, lam = _lm_step(total_error, linear, values, error, lam, params, damping, solve_linear)
         if new_values is None:  # no step: the decrease is negligible, or lambda reached its bound
             break
         iterations += 1
@@ -267,19 +277,14 @@ class _Damping:
         return out
 
 
-def _lm_step(total_error, linear, values, error, lam, params, damping: _Damping, ordering):
+def _lm_step(total_error, linear, values, error, lam, params, damping: _Damping, solve_linear):
     """GTSAM's ``tryLambda`` loop: (new values, new error, next lambda), or (None, error, lambda) to stop."""
-    qr = params.getLinearSolverType() == "MULTIFRONTAL_QR"
     old_linear_error = linear.error(values.zeroVectors())
     while True:
         try:
-            damped = damping.damped(linear, lam)
-            if qr:
-                delta = damped.eliminateMultifrontal(ordering, gtsam.EliminateQR).optimize()
-            else:
-                delta = damped.optimize(ordering)
+            delta = solve_linear(damping.damped(linear, lam))
         except RuntimeError as failure:  # GTSAM's tryLambda: an indeterminate damped system is a failed try
-            if "Indeterminant" not in str(failure) and "Indeterminate" not in str(failure):
+            if not is_indeterminate(failure):
                 raise
             delta = None
         linear_change = -1.0 if delta is None else old_linear_error - linear.error(delta)

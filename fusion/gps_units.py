@@ -159,14 +159,13 @@ def vertical_scale(sequence: ImuSequence, fixes: GpsFixes) -> TrackScale | None:
 
 def heading_scale(sequence: ImuSequence, fixes: GpsFixes) -> TrackScale | None:
     """How many times the GPS track turns as far as the gyro says, for a vehicle that heads where it goes (a car, a
-    fixed-wing): the change of the track's course from one chord (consecutive fixes ``SPACING_S`` or more apart,
-    but not across a gap: at most ``MAX_CHORD_SPANS`` times the median chord; both at ``MIN_SPEED_M_S`` or faster)
-    to the next, regressed through 0 on the change of the gyro's heading
-    averaged over the same chords (the rate about the up axis, up from the accelerometer averaged over +-1 s; the
-    gyro's median taken out first). 1 for a gyro in rad/s; pi/180 for one in deg/s read as rad/s, 1e-3 for mrad/s,
-    180/pi for rad/s converted as if deg/s; -1 for a gyro whose sign is flipped. None with fewer than
-    ``SCALE_MIN_ROWS`` pairs of chords; decided with R^2 >= ``HEADING_MIN_R2`` (a drone that flies sideways is
-    not). KITTI raw drives with 0.5 m GPS noise (BENCHMARKS.md, Hostile inputs)."""
+    fixed-wing): the change of the track's course from one chord (consecutive fixes ``SPACING_S`` or more apart, but not
+    across a gap: at most ``MAX_CHORD_SPANS`` times the median chord; both at ``MIN_SPEED_M_S`` or faster) to the next,
+    regressed through 0 on the change of the gyro's heading averaged over the same chords (the rate about the up axis,
+    up from the accelerometer averaged over +-1 s; the gyro's median taken out first). 1 for a gyro in rad/s; pi/180 for
+    one in deg/s read as rad/s, 1e-3 for mrad/s, 180/pi for rad/s converted as if deg/s; -1 for a gyro whose sign is
+    flipped. None with fewer than ``SCALE_MIN_ROWS`` pairs of chords; decided with R^2 >= ``HEADING_MIN_R2`` (a drone
+    that flies sideways is not). KITTI raw drives with 0.5 m GPS noise (BENCHMARKS.md, Hostile inputs)."""
     inside = (fixes.t >= sequence.t[0]) & (fixes.t <= sequence.t[-1])
     t, pos = fixes.t[inside], fixes.pos[inside]
     keep = _spaced(t)

@@ -87,4 +87,4 @@ def fast_route(graph, settings):
         return None
     params = lm_params(settings)
     params.setLinearSolverType("MULTIFRONTAL_QR")
-    return lambda graph, initial: solve_motion_graph(graph, initial, params).values
+    return lambda rebuilt, initial: solve_motion_graph(rebuilt, initial, params).values

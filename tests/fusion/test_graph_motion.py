@@ -208,7 +208,7 @@ def test_bias_states_with_motion_factors_solve_on_the_python_stepped_route(drone
     monkeypatch.setattr(module, "solve_motion_graph", lambda *args: calls.append(1) or real(*args))
     fast, _ = module.solve_export(export, None, config, motion=motion)
     assert calls  # every round of the re-linearisation
-    monkeypatch.setattr(module, "fast_route", lambda graph, params: None)  # GTSAM's LM with the callbacks
+    monkeypatch.setattr(module, "fast_route", lambda graph, settings: None)  # GTSAM's LM with the callbacks
     slow, _ = module.solve_export(export, None, config, motion=motion)
     assert len(calls) == fast.iterations  # the slow route did not call it
     np.testing.assert_allclose(fast.trajectory.pos, slow.trajectory.pos, atol=1e-6)

@@ -205,6 +205,9 @@ def main() -> None:
     parser.add_argument(
         "--cov-scale", type=float, nargs="+", default=[MotionSettings.cov_scale], help="motion.cov_scale: 1 or 3"
     )
+    parser.add_argument(
+        "--mount-sigma", type=float, nargs="+", help="motion.mount_sigma_rad: a mounting-rotation state (1 or 3, rad)"
+    )
     parser.add_argument("--outages", action="store_true", help="also the GPS-outage rows")
     parser.add_argument("--gtsam-drive", action="store_true", help="only GTSAM's drive, one fix in ten (fold 1)")
     parser.add_argument(
@@ -214,7 +217,8 @@ def main() -> None:
     parser.add_argument("--json", help="write the rows here")
     args = parser.parse_args()
     logging.basicConfig(level=logging.ERROR)
-    motion = MotionSettings(args.keyframe_s, args.passes, tuple(args.cov_scale))
+    mount = None if args.mount_sigma is None else tuple(args.mount_sigma)
+    motion = MotionSettings(args.keyframe_s, args.passes, tuple(args.cov_scale), mount)
     config = FuseConfig(
         gyro_noise_density=GTSAM_NOISE[0], acc_noise_density=GTSAM_NOISE[1], keyframe_s=1.0, motion=motion
     )

@@ -7,7 +7,9 @@ covariance ``cov``: diagonal variances (3,) or a full 3x3 covariance, (m/s)^2 (s
 Error ``e = R_i^T v_i - v_body`` (body frame, m/s); Gaussian noise with the learned covariance, so the factor's
 ``error`` is ``0.5 e^T cov^-1 e``. Jacobians are analytic in GTSAM's Pose3 tangent order [rotation, translation] with
 the right-multiplied perturbation ``R Exp(w)``: ``d e / d X_i = [skew(R_i^T v_i), 0_3x3]``, ``d e / d V_i = R_i^T``
-(``(R Exp(w))^T v = R^T v - w x R^T v`` to first order); ``Rot3.unrotate`` computes both in C++.
+(``(R Exp(w))^T v = R^T v - w x R^T v`` to first order); ``Rot3.unrotate`` computes both in C++. With a mounting
+rotation ``M`` (``mount_key``, a ``Rot3`` shared by a log's factors: the IMU body frame <- the frame of the model's
+velocities) ``e = M^T R_i^T v_i - v_body``: the Jacobians above times ``M^T``, and ``d e / d M = skew(M^T R_i^T v_i)``.
 
 Speed. No C++ factor in gtsam 4.3's Python module has this error on (Pose3, Vector3) keys, so this is a Python
 ``gtsam.CustomFactor``. Inside GTSAM's own optimisers (``LevenbergMarquardtOptimizer``, ``ISAM2``) pybind11 hands the
@@ -39,9 +41,10 @@ MIN_MODEL_FIDELITY = 1e-3
 
 class MotionFactor(gtsam.CustomFactor):
     """Body-frame velocity ``v_body`` (m/s) measured at (X(i), V(i)), with its covariance ((3,) variances or 3x3,
-    (m/s)^2). Error ``R_i^T v_i - v_body`` (module docstring)."""
+    (m/s)^2). Error ``R_i^T v_i - v_body``, or ``M^T R_i^T v_i - v_body`` with a mounting rotation at ``mount_key``
+    (module docstring)."""
 
-    def __init__(self, pose_key: int, vel_key: int, v_body, cov):
+    def __init__(self, pose_key: int, vel_key: int, v_body, cov, mount_key: int | None = None):
         self.v_body = _finite("v_body", v_body, ((3,),), "(3,) m/s")
         cov = _finite("cov", cov, ((3,), (3, 3)), "(3,) variances or (3, 3), (m/s)^2")
         problem = covariance_problem(cov)
@@ -52,18 +55,26 @@ class MotionFactor(gtsam.CustomFactor):
             noise = gtsam.noiseModel.Diagonal.Variances(cov)
         else:
             noise = gtsam.noiseModel.Gaussian.Covariance(self.cov)
-        self.pose_key, self.vel_key = pose_key, vel_key
-        super().__init__(noise, [pose_key, vel_key], self._evaluate)
+        self.pose_key, self.vel_key, self.mount_key = pose_key, vel_key, mount_key
+        keys = [pose_key, vel_key] if mount_key is None else [pose_key, vel_key, mount_key]
+        super().__init__(noise, keys, self._evaluate)
 
     def _evaluate(self, this: gtsam.CustomFactor, values: gtsam.Values, jacobians: list | None) -> np.ndarray:
         rot = values.atPose3(self.pose_key).rotation()
         vel = values.atVector(self.vel_key)
+        mount = None if self.mount_key is None else values.atRot3(self.mount_key)
         if jacobians is None:
-            return rot.unrotate(vel) - self.v_body
+            v_in_body = rot.unrotate(vel)
+            return (v_in_body if mount is None else mount.unrotate(v_in_body)) - self.v_body
         d_rot, d_vel = np.zeros((3, 3), order="F"), np.zeros((3, 3), order="F")
         v_in_body = rot.unrotate(vel, d_rot, d_vel)  # d_rot = skew(R^T v), d_vel = R^T
         d_pose = np.zeros((3, 6))
         d_pose[:, 0:3] = d_rot  # the translation does not enter
+        if mount is not None:  # e = M^T u - v_body, u = R^T v: d e / d M = skew(M^T u), d e / d u = M^T
+            d_mount, d_u = np.zeros((3, 3), order="F"), np.zeros((3, 3), order="F")
+            v_in_body = mount.unrotate(v_in_body, d_mount, d_u)
+            d_pose, d_vel = d_u @ d_pose, d_u @ d_vel
+            jacobians[2] = d_mount
         jacobians[0] = d_pose
         jacobians[1] = d_vel
         return v_in_body - self.v_body
@@ -75,6 +86,7 @@ def motion_factors(
     pose_key=gtsam.symbol_shorthand.X,
     vel_key=gtsam.symbol_shorthand.V,
     keys=None,
+    mount_key: int | None = None,
 ) -> list[MotionFactor]:
     """One ``MotionFactor`` per row: row r on (``pose_key(k)``, ``vel_key(k)``) with ``k = keys[r]``.
 
@@ -84,6 +96,8 @@ def motion_factors(
         pose_key, vel_key: functions of a keyframe index giving its keys (``X``, ``V`` by default; e.g.
             ``lambda k: X(k + 1)`` to number from 1), as ``factors.from_export`` takes them.
         keys: (K,) the keyframe index of each row; default 0 .. K-1.
+        mount_key: a ``Rot3`` key M shared by every factor (a mounting rotation: error ``M^T R_i^T v_i - v_body``),
+            or None.
     """
     v_body = real_array(v_body, "motion_factors: v_body")
     cov = real_array(cov, "motion_factors: cov")
@@ -100,7 +114,7 @@ def motion_factors(
     factors = []
     for row, k in enumerate(index.tolist()):
         try:
-            factors.append(MotionFactor(pose_key(k), vel_key(k), v_body[row], cov[row]))
+            factors.append(MotionFactor(pose_key(k), vel_key(k), v_body[row], cov[row], mount_key))
         except InputError as error:
             raise InputError(f"motion_factors: row {row} (keyframe {k}): {error}") from None
     return factors
@@ -125,6 +139,10 @@ class MotionTerms:
     character also names non-vector values falls back to ``Values.atVector`` per key."""
 
     def __init__(self, factors: list[MotionFactor]):
+        mounts = {f.mount_key for f in factors}
+        if len(mounts) > 1:
+            raise GraphError(f"MotionTerms: the factors must share one mount key (or none), got {len(mounts)}")
+        self.mount_key = mounts.pop() if mounts else None
         self.pose_keys = np.array([f.pose_key for f in factors], dtype=np.uint64)
         self.vel_keys = np.array([f.vel_key for f in factors], dtype=np.uint64)
         self.v_body = np.array([f.v_body for f in factors]).reshape(-1, 3)
@@ -138,23 +156,40 @@ class MotionTerms:
 
     def linearize(self, values: gtsam.Values) -> gtsam.GaussianFactorGraph:
         """One whitened ``JacobianFactor`` per factor on (pose key, velocity key), as ``MotionFactor.linearize``."""
-        rot, w, white = self._whitened(values)
-        d_pose = np.zeros((len(w), 3, 6))  # [skew(R^T v), 0]
-        d_pose[:, 0, 1], d_pose[:, 0, 2], d_pose[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
-        d_pose[:, 1, 0], d_pose[:, 2, 0], d_pose[:, 2, 1] = w[:, 2], -w[:, 1], w[:, 0]
-        a_pose, a_vel = self.whiten @ d_pose, self.whiten @ np.swapaxes(rot, 1, 2)
+        rot, u, white = self._whitened(values)
+        d_pose = np.zeros((len(u), 3, 6))  # [skew(R^T v), 0]
+        d_pose[:, :, 0:3] = _skew(u)
+        d_vel = np.swapaxes(rot, 1, 2)
+        mount = self._mount(values)
+        if mount is not None:  # e = M^T u - v_body: d e / d u = M^T, d e / d M = skew(M^T u)
+            d_pose, d_vel = mount.T @ d_pose, mount.T @ d_vel
+            a_mount = self.whiten @ _skew(u @ mount)
+        a_pose, a_vel = self.whiten @ d_pose, self.whiten @ d_vel
         out = gtsam.GaussianFactorGraph()
         for k, (pose_key, vel_key) in enumerate(zip(self.pose_keys.tolist(), self.vel_keys.tolist(), strict=True)):
-            out.push_back(gtsam.JacobianFactor(pose_key, a_pose[k], vel_key, a_vel[k], -white[k], self._unit))
+            if mount is None:
+                out.push_back(gtsam.JacobianFactor(pose_key, a_pose[k], vel_key, a_vel[k], -white[k], self._unit))
+            else:
+                out.push_back(
+                    gtsam.JacobianFactor(
+                        pose_key, a_pose[k], vel_key, a_vel[k], self.mount_key, a_mount[k], -white[k], self._unit
+                    )
+                )
         return out
 
+    def _mount(self, values: gtsam.Values) -> np.ndarray | None:
+        return None if self.mount_key is None else values.atRot3(self.mount_key).matrix()
+
     def _whitened(self, values: gtsam.Values) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Rotations R (K, 3, 3), R^T v (K, 3) and the whitened errors W (R^T v - v_body) (K, 3)."""
+        """Rotations R (K, 3, 3), u = R^T v (K, 3) and the whitened errors W (M^T u - v_body) (K, 3) (M: the mount
+        rotation, identity without one)."""
         poses = np.array(gtsam.utilities.allPose3s(values).keys(), dtype=np.uint64)
         rot = gtsam.utilities.extractPose3(values)[_rows(poses, self.pose_keys, "Pose3"), :9].reshape(-1, 3, 3)
         vel = self._velocities(values)
         v_in_body = np.einsum("kji,kj->ki", rot, vel)
-        return rot, v_in_body, np.einsum("kij,kj->ki", self.whiten, v_in_body - self.v_body)
+        mount = self._mount(values)
+        measured = v_in_body if mount is None else v_in_body @ mount
+        return rot, v_in_body, np.einsum("kij,kj->ki", self.whiten, measured - self.v_body)
 
     def _velocities(self, values: gtsam.Values) -> np.ndarray:
         keys = np.array(values.keys(), dtype=np.uint64)
@@ -169,6 +204,14 @@ class MotionTerms:
             else:  # the character also names other values: one by one
                 out[mine] = [values.atVector(int(key)) for key in self.vel_keys[mine]]
         return out
+
+
+def _skew(w: np.ndarray) -> np.ndarray:
+    """(K, 3, 3) cross-product matrices of (K, 3) vectors."""
+    out = np.zeros((len(w), 3, 3))
+    out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
+    out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = w[:, 2], -w[:, 1], w[:, 0]
+    return out
 
 
 def _rows(available: np.ndarray, wanted: np.ndarray, kind: str) -> np.ndarray:
@@ -223,7 +266,17 @@ def solve_with_python_factors(
         return graph.error(at) + sum(term.error(at) for term in extra)
 
     values = gtsam.Values(initial)  # owned by Python: the callbacks get it by reference
-    ordering = graph.orderingCOLAMD()
+
+    def linearize(at: gtsam.Values) -> gtsam.GaussianFactorGraph:
+        linear = graph.linearize(at)
+        for term in extra:
+            linear.push_back(term.linearize(at))
+        return linear
+
+    # COLAMD of the whole system, as GTSAM's LM orders a graph holding every factor: a variable only ``extra`` ties
+    # to the rest (a motion factors' mounting rotation) would otherwise be eliminated first, filling in everything
+    linear = linearize(values)
+    ordering = gtsam.Ordering.ColamdGaussianFactorGraph(linear) if extra else graph.orderingCOLAMD()
     if params.getLinearSolverType() == "MULTIFRONTAL_QR":
 
         def solve_linear(system):
@@ -237,9 +290,7 @@ def solve_with_python_factors(
     damping = _Damping(values)
     lam, error, iterations = params.getlambdaInitial(), total_error(values), 0
     while iterations < params.getMaxIterations() and error > params.getErrorTol():
-        linear = graph.linearize(values)
-        for term in extra:
-            linear.push_back(term.linearize(values))
+        linear = linear if iterations == 0 else linearize(values)
         new_values, new_error, lam = _lm_step(total_error, linear, values, error, lam, params, damping, solve_linear)
         if new_values is None:  # no step: the decrease is negligible, or lambda reached its bound
             break

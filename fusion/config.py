@@ -155,11 +155,16 @@ class MotionSettings:
     - ``cov_scale``: every predicted variance is multiplied by this (AirIO's EKF uses 0.1; 1: as predicted); one
       number, or three, one per body axis of the model's output (``[1.0e6, 1, 1]`` leaves a car's forward speed,
       axis x, to the IMU: sigma x 1000).
+    - ``mount_sigma_rad``: null, or a mounting-rotation state shared by every motion factor of a log (the rotation
+      from the IMU's body frame to the frame the model's velocities are in), with a prior at identity of this sigma
+      (rad; one, or three: roll, pitch, yaw): for a model used on an IMU mounted otherwise than in its training.
+      On KITTI's drives (one car) it does not help: the model reads the drive's pitch off gravity (BENCHMARKS.md).
     """
 
     keyframe_s: float | None = 0.2
     passes: int = 2
     cov_scale: float | tuple[float, float, float] = 1.0
+    mount_sigma_rad: float | tuple[float, float, float] | None = None
 
     def __post_init__(self):
         if self.keyframe_s is not None and not (math.isfinite(self.keyframe_s) and self.keyframe_s > 0):
@@ -178,6 +183,20 @@ class MotionSettings:
             )
         # one number however given (a list of one from YAML or argparse), three as a tuple
         object.__setattr__(self, "cov_scale", float(numbers[0]) if len(numbers) == 1 else tuple(map(float, numbers)))
+        if self.mount_sigma_rad is not None:
+            sigma = self.mount_sigma_rad
+            numbers = list(sigma) if isinstance(sigma, (tuple, list)) else [sigma]
+            if not (
+                len(numbers) in (1, 3)
+                and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in numbers)
+                and all(math.isfinite(v) and 0 < v <= 1 for v in numbers)
+            ):
+                raise ConfigError(
+                    f"motion.mount_sigma_rad must be null or a sigma in (0, 1] rad, one or three (roll, pitch, yaw), "
+                    f"got {self.mount_sigma_rad!r}"
+                )
+            value = float(numbers[0]) if len(numbers) == 1 else tuple(map(float, numbers))
+            object.__setattr__(self, "mount_sigma_rad", value)
 
 
 @dataclass(frozen=True)

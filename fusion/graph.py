@@ -63,7 +63,7 @@ from fusion.still import StillStart
 
 log = logging.getLogger(__name__)
 
-X, V, B = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V, gtsam.symbol_shorthand.B
+X, V, B, M = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V, gtsam.symbol_shorthand.B, gtsam.symbol_shorthand.M
 
 
 # GPS fixes are the readers' record, airimu_core.sequence.GpsFixes (t (M,) s on the IMU clock, pos (M, 3)
@@ -150,6 +150,7 @@ def build_graph(
     motion: BodyVelocities | None = None,
     guess: gtsam.Values | None = None,
     still: StillStart | None = None,
+    mount_sigma_rad=None,
 ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
     """The pose graph of an export, GPS fixes and learned body-frame velocities, and its initial values (see the
     module docstring).
@@ -164,7 +165,10 @@ def build_graph(
     of this export's keyframes from an earlier solve (e.g. the pass before the motion factors changed), one more
     candidate for the initial values (its poses and velocities). ``still``: the log's still start
     (``fusion.still``), for an aligned first state: its gravity gives roll and pitch, and its tilt sigma the prior's
-    about the horizontal axes (``fusion.align.aligned_prior``).
+    about the horizontal axes (``fusion.align.aligned_prior``). ``mount_sigma_rad``: with ``motion``, a mounting
+    rotation state ``M(0)`` (``Rot3``, the IMU body frame <- the frame the model's velocities are in) on every motion
+    factor, with a prior at identity of these sigmas (rad, one or three: roll, pitch, yaw)
+    (``fusion.config.MotionSettings.mount_sigma_rad``).
     """
     settings = settings or FusionSettings()
     export = export if isinstance(export, Export) else load_export(export)
@@ -200,9 +204,16 @@ def build_graph(
             align_gps.setdefault(int(index), []).append(factor)
     if len(gps.t) and not gps_factors:
         raise InputError(f"{export.path}: no GPS fix lies within half a keyframe interval of a keyframe")
-    moving = keyframe_motion_factors(motion, times) if motion is not None else []
+    mount = M(0) if motion is not None and mount_sigma_rad is not None else None
+    moving = keyframe_motion_factors(motion, times, mount) if motion is not None else []
     for factor in moving:
         graph.add(factor)
+    if mount is not None and moving:
+        sigmas = np.broadcast_to(np.asarray(mount_sigma_rad, dtype=float), (3,))
+        moving.append(gtsam.PriorFactorRot3(mount, gtsam.Rot3(), gtsam.noiseModel.Diagonal.Sigmas(sigmas)))
+        graph.add(moving[-1])
+    else:
+        mount = None
 
     first = known_first_state(export, initial_state)
     if first is None and not gps_factors:
@@ -234,6 +245,8 @@ def build_graph(
     if guess is not None:
         candidates.append(_states_of(guess, len(times), settings))
     for values in candidates:
+        if mount is not None and not values.exists(mount):
+            values.insert(mount, guess.atRot3(mount) if guess is not None and guess.exists(mount) else gtsam.Rot3())
         check_values(graph, values)
     init_graph = graph
     if init_loss != settings.gps_robust:  # the same graph with the initial guesses' GPS factors
@@ -300,6 +313,8 @@ def _with_bias_states(
         out.insert(X(k), values.atPose3(X(k)))
         out.insert(V(k), values.atVector(V(k)))
         out.insert(B(k), zero)
+    if values.exists(M(0)):  # the motion factors' mounting rotation
+        out.insert(M(0), values.atRot3(M(0)))
     check_values(graph, out)
     return graph, out
 
@@ -331,43 +346,44 @@ def solve_motion_graph(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, 
 
 
 def split_motion_factors(graph: gtsam.NonlinearFactorGraph) -> tuple[gtsam.NonlinearFactorGraph, list[MotionFactor]]:
-    """(the graph without its ``MotionFactor``s, those factors); a motion factor on a key no other factor holds stays
-    in the graph (the elimination ordering is the remaining graph's)."""
+    """(the graph without its ``MotionFactor``s, those factors)."""
     rest, motion = gtsam.NonlinearFactorGraph(), []
-    factors = [graph.at(i) for i in range(graph.size())]
-    held = {key for f in factors if not isinstance(f, MotionFactor) for key in f.keys()}
-    for factor in factors:
-        if isinstance(factor, MotionFactor) and factor.pose_key in held and factor.vel_key in held:
+    for i in range(graph.size()):
+        factor = graph.at(i)
+        if isinstance(factor, MotionFactor):
             motion.append(factor)
         else:
             rest.push_back(factor)
     return rest, motion
 
 
-def keyframe_motion_factors(motion: BodyVelocities, times: np.ndarray) -> list[MotionFactor]:
-    """A ``MotionFactor`` on (X(k), V(k)) for every keyframe time inside ``motion``'s span (interpolated)."""
+def keyframe_motion_factors(motion: BodyVelocities, times: np.ndarray, mount_key: int | None = None) -> list:
+    """A ``MotionFactor`` on (X(k), V(k)[, ``mount_key``]) for every keyframe time inside ``motion``'s span
+    (interpolated)."""
     vel, var, inside = motion.at(times)
     keys = np.flatnonzero(inside)
     if len(keys) == 0:
         log.warning("no keyframe lies inside the motion model's time span: no motion factor")
-    return motion_factors(vel[keys], var[keys], X, V, keys=keys)
+    return motion_factors(vel[keys], var[keys], X, V, keys=keys, mount_key=mount_key)
 
 
 def trajectory_of(values: gtsam.Values, times: np.ndarray, marginals: gtsam.Marginals | None = None) -> Trajectory:
     """Keyframe states X(k), V(k) of ``values`` (and position marginals if ``marginals`` is given)."""
-    poses = [values.atPose3(X(k)) for k in range(len(times))]
+    keys = np.array([X(k) for k in range(len(times))], dtype=np.uint64)
+    held = np.array(gtsam.utilities.allPose3s(values).keys(), dtype=np.uint64)  # sorted, as extractPose3's rows
+    rows = np.minimum(np.searchsorted(held, keys), max(len(held) - 1, 0))
+    if len(keys) and (not len(held) or np.any(held[rows] != keys)):
+        missing = int(keys[np.flatnonzero(held[rows] != keys)[0]]) if len(held) else int(keys[0])
+        raise GraphError(f"trajectory_of: the values have no Pose3 for {gtsam.DefaultKeyFormatter(missing)}")
+    table = gtsam.utilities.extractPose3(values)[rows] if len(keys) else np.zeros((0, 12))
+    rot, pos = table[:, :9].reshape(-1, 3, 3), table[:, 9:]  # R row-major, then the translation
     pos_cov = None
     if marginals is not None:  # Pose3 tangent is [rotation, translation]; translation in the body frame
-        pos_cov = np.array(
-            [
-                p.rotation().matrix() @ marginals.marginalCovariance(X(k))[3:, 3:] @ p.rotation().matrix().T
-                for k, p in enumerate(poses)
-            ]
-        )
+        pos_cov = np.array([r @ marginals.marginalCovariance(X(k))[3:, 3:] @ r.T for k, r in enumerate(rot)])
     return Trajectory(
         t=np.asarray(times, dtype=float),
-        rot=np.array([p.rotation().matrix() for p in poses]),
-        pos=np.array([p.translation() for p in poses]),
+        rot=rot,
+        pos=pos,
         vel=np.array([values.atVector(V(k)) for k in range(len(times))]),
         pos_cov=pos_cov,
     )

@@ -134,6 +134,11 @@ class OnlineFusion:
             )
         if motion_model is not None and motion_model.training:
             raise InputError("OnlineFusion: call motion_model.eval() first (streaming needs eval mode)")
+        if motion_model is not None and config.motion.mount_sigma_rad is not None:
+            raise InputError(
+                "OnlineFusion: motion.mount_sigma_rad (a mounting-rotation state) is batch only (airimu fuse without "
+                "--online); set it to null"
+            )
         self._model, self._keyframe_s, self._lag_s = model, online.keyframe_s, online.lag_s
         self._motion, self._motion_scale = motion_model, config.motion.cov_scale
         self._motion_stream = motion_model.initial_state(1) if motion_model is not None else None

@@ -50,8 +50,9 @@ def solve_export(
     config = config or FuseConfig()
     settings, bias = config.graph, config.bias_states
     graph, values = build_graph(
-        export, fixes, settings, initial_state, bias=bias, motion=motion, guess=guess, still=still
-    )
+        export, fixes, settings, initial_state, bias=bias, motion=motion, guess=guess, still=still,
+        mount_sigma_rad=config.motion.mount_sigma_rad,
+    )  # fmt: skip
     if bias is None or settings.backend != "gtsam":
         solution = solve(graph, values, export.keyframe_t, settings)
     else:

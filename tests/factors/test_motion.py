@@ -6,7 +6,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 import pytest
-from gtsam.symbol_shorthand import B, L, V, X
+from gtsam.symbol_shorthand import B, L, M, V, X
 
 from airimu_core.errors import GraphError, InputError
 from factors.motion import MotionFactor, MotionTerms, motion_factors, solve_with_python_factors
@@ -45,6 +45,38 @@ def test_jacobians_equal_numerical_derivatives(seed):
     np.testing.assert_allclose(jacobians[0][:, :3], hat(r.T @ values.atVector(V(0))), atol=1e-12)
     np.testing.assert_allclose(jacobians[0][:, 3:], 0.0, atol=0)
     np.testing.assert_allclose(jacobians[1], r.T, atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_mounted_jacobians_equal_numerical_derivatives(seed):
+    """With a mounting rotation M: error M^T R^T v - v_body, every Jacobian (pose, velocity, mount) against central
+    differences in float64."""
+    rng = np.random.default_rng(seed)
+    values = random_state(rng)
+    values.insert(M(0), gtsam.Rot3.Expmap(rng.normal(size=3) * 0.3))
+    factor = MotionFactor(X(0), V(0), rng.normal(size=3), random_cov(rng), mount_key=M(0))
+    assert list(factor.keys()) == [X(0), V(0), M(0)]
+    jacobians = [np.zeros((3, 6)), np.zeros((3, 3)), np.zeros((3, 3))]
+    error = factor._evaluate(factor, values, jacobians)
+    r, m = values.atPose3(X(0)).rotation().matrix(), values.atRot3(M(0)).matrix()
+    np.testing.assert_allclose(error, m.T @ r.T @ values.atVector(V(0)) - factor.v_body, atol=1e-12)
+    for analytic, key in zip(jacobians, (X(0), V(0), M(0)), strict=True):
+        numeric = error_jacobian(factor, values, key)
+        assert np.abs(analytic - numeric).max() < 1e-8 * max(1.0, np.abs(numeric).max()), key
+    assert np.abs(jacobians[0][:, 3:]).max() == 0.0
+
+
+def test_an_identity_mount_is_the_factor_without_one():
+    rng = np.random.default_rng(3)
+    values = random_state(rng)
+    values.insert(M(0), gtsam.Rot3())
+    cov = random_cov(rng)
+    v_body = rng.normal(size=3)
+    plain, mounted = MotionFactor(X(0), V(0), v_body, cov), MotionFactor(X(0), V(0), v_body, cov, mount_key=M(0))
+    assert mounted.error(values) == pytest.approx(plain.error(values), rel=1e-14)
+    a_plain, _ = plain.linearize(values).jacobian()
+    a_mounted, _ = mounted.linearize(values).jacobian()
+    np.testing.assert_allclose(a_mounted[:, :9], a_plain, atol=1e-12)
 
 
 def test_error_is_zero_for_a_consistent_state():
@@ -174,6 +206,28 @@ def test_motion_terms_equal_the_factors(full):
             assert list(ours.keys()) == list(theirs.keys())
             expected = theirs.augmentedInformation()
             np.testing.assert_allclose(ours.augmentedInformation(), expected, atol=1e-9 * np.abs(expected).max())
+
+
+def test_mounted_motion_terms_equal_the_factors():
+    rng = np.random.default_rng(21)
+    keyframes = 5
+    values = gtsam.Values()
+    for k in range(keyframes):
+        values.insert(X(k), gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3)), rng.normal(size=3)))
+        values.insert(V(k), rng.normal(size=3) * 3)
+    values.insert(M(0), gtsam.Rot3.Expmap([0.01, -0.02, 0.05]))
+    made = motion_factors(rng.normal(size=(keyframes, 3)), rng.uniform(1e-3, 0.1, (keyframes, 3)), mount_key=M(0))
+    terms = MotionTerms(made)
+    assert terms.error(values) == pytest.approx(sum(f.error(values) for f in made), rel=1e-12)
+    linear = terms.linearize(values)
+    for k, factor in enumerate(made):
+        ours, theirs = linear.at(k), factor.linearize(values)
+        assert list(ours.keys()) == list(theirs.keys()) == [X(k), V(k), M(0)]
+        expected = theirs.augmentedInformation()
+        np.testing.assert_allclose(ours.augmentedInformation(), expected, atol=1e-9 * np.abs(expected).max())
+    mixed = [*made, MotionFactor(X(0), V(0), np.zeros(3), np.ones(3))]
+    with pytest.raises(GraphError, match="one mount key"):
+        MotionTerms(mixed)
 
 
 def test_motion_terms_in_the_python_driven_lm_equal_the_factors_in_gtsam_lm():

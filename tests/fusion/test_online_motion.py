@@ -75,3 +75,13 @@ def test_a_motion_model_of_another_rate_is_refused_by_the_stream():
     fusion = OnlineFusion(None, seq.gravity, gtsam.NavState(pose, seq.gt.vel[0]), motion_model=motion)
     with pytest.raises(InputError, match="trained at 100.0 Hz"):
         fusion.add_imu(seq.t[:50], seq.gyro[:50], seq.acc[:50])
+
+
+def test_a_mount_state_is_refused_online():
+    from fusion.config import MotionSettings
+
+    seq = simulate("drone", duration_s=2.0, seed=1)
+    pose = gtsam.Pose3(gtsam.Rot3(seq.gt.rot[0]), seq.gt.pos[0])
+    config = FuseConfig(motion=MotionSettings(mount_sigma_rad=0.01))
+    with pytest.raises(InputError, match="mount_sigma_rad"):
+        OnlineFusion(None, seq.gravity, gtsam.NavState(pose, seq.gt.vel[0]), config, motion_model=TruthMotion(seq))

@@ -201,6 +201,36 @@ class ImuSequence:
         runs = [run for run in segments(self.t, max_gap_steps) if run.stop - run.start >= 2]
         return [self._samples(run, f"{self.name}_part{k}") for k, run in enumerate(runs)]
 
+    def bridge_gaps(self, max_gap_steps: float = MAX_GAP_STEPS) -> ImuSequence:
+        """The sequence with every gap (a step longer than ``max_gap_steps`` median steps) filled with samples at the
+        median step, gyro and acc linear between the samples either side of it: integrating them is the trapezoidal
+        rule over the gap where holding the last sample (the readers' ``on_gap="keep"`` output integrated as is) is
+        the rectangle rule, which on a car turning through a 1.6-s gap of KITTI's OXTS stream lost up to 15 degrees
+        of heading. Ground truth on a filled sample: position and velocity linear, the rotation of the sample before,
+        not valid. Unchanged (the same object) without gaps."""
+        gaps = gap_indices(self.t, max_gap_steps)
+        if gaps.size == 0:
+            return self
+        step = float(np.median(np.diff(self.t)))
+        filled = []
+        for g in gaps.tolist():
+            count = int(round((self.t[g + 1] - self.t[g]) / step)) - 1
+            filled.append(self.t[g] + (self.t[g + 1] - self.t[g]) * np.arange(1, count + 1) / (count + 1))
+        t = np.concatenate([self.t, *filled])
+        order = np.argsort(t, kind="stable")
+        t, original = t[order], (np.arange(len(t)) < len(self.t))[order]
+
+        def linear(values: np.ndarray) -> np.ndarray:
+            return np.column_stack([np.interp(t, self.t, values[:, i]) for i in range(values.shape[1])])
+
+        gt = None
+        if self.gt is not None:
+            before = np.searchsorted(self.t, t, side="right") - 1
+            valid = np.zeros(len(t), dtype=bool)
+            valid[original] = self.gt.valid
+            gt = GroundTruth(self.gt.rot[before], linear(self.gt.pos), linear(self.gt.vel), valid)
+        return ImuSequence(self.name, t, linear(self.gyro), linear(self.acc), self.gravity, gt, self.gps, self.source)
+
     def _samples(self, cut: slice, name: str) -> ImuSequence:
         """The samples ``cut`` with their ground truth and the GPS fixes inside their time span."""
         gt = None

@@ -208,6 +208,12 @@ def main() -> None:
     parser.add_argument(
         "--mount-sigma", type=float, nargs="+", help="motion.mount_sigma_rad: a mounting-rotation state (1 or 3, rad)"
     )
+    parser.add_argument(
+        "--imu-gaps",
+        choices=("hold", "interpolate"),
+        default="hold",
+        help="imu_gaps of the t_rel rows: how a gap of the IMU is integrated",
+    )
     parser.add_argument("--outages", action="store_true", help="also the GPS-outage rows")
     parser.add_argument("--gtsam-drive", action="store_true", help="only GTSAM's drive, one fix in ten (fold 1)")
     parser.add_argument(
@@ -220,7 +226,11 @@ def main() -> None:
     mount = None if args.mount_sigma is None else tuple(args.mount_sigma)
     motion = MotionSettings(args.keyframe_s, args.passes, tuple(args.cov_scale), mount)
     config = FuseConfig(
-        gyro_noise_density=GTSAM_NOISE[0], acc_noise_density=GTSAM_NOISE[1], keyframe_s=1.0, motion=motion
+        gyro_noise_density=GTSAM_NOISE[0],
+        acc_noise_density=GTSAM_NOISE[1],
+        keyframe_s=1.0,
+        imu_gaps=args.imu_gaps,
+        motion=motion,
     )
     rows, outages = [], []
     if args.gtsam_drive:
@@ -268,7 +278,7 @@ def main() -> None:
             row["imu"] = scores(part, fuse(part, None, None, config, start="ground-truth"))
             row["motion"] = scores(part, fuse(part, None, None, config, motion_model=net, start="ground-truth"))
             if correction is not None:
-                learned = FuseConfig(keyframe_s=1.0, motion=motion)
+                learned = FuseConfig(keyframe_s=1.0, imu_gaps=args.imu_gaps, motion=motion)
                 row["airimu"] = scores(part, fuse(part, None, correction, learned, start="ground-truth"))
                 row["airimu_motion"] = scores(
                     part, fuse(part, None, correction, learned, motion_model=net, start="ground-truth")

@@ -199,6 +199,9 @@ class MotionSettings:
             object.__setattr__(self, "mount_sigma_rad", value)
 
 
+IMU_GAPS = ("hold", "interpolate")  # FuseConfig.imu_gaps
+
+
 @dataclass(frozen=True)
 class FuseConfig:
     """What ``airimu fuse`` (``airimu.fuse.fuse``) and ``OnlineFusion`` fuse with; ``configs/fuse.yaml`` holds these
@@ -212,6 +215,9 @@ class FuseConfig:
     - ``estimate_bias``: a bias state per keyframe, with the sigmas and factor of ``bias``.
     - ``still_start``: without a model, a still start (``fusion.still``: the IMU quiet and the GPS or the given
       start velocity still) gives the raw gyro's bias, taken out of every sample.
+    - ``imu_gaps``: ``"hold"``: a gap in the IMU samples (a step over 5 median steps) is integrated with the sample
+      before it held (GTSAM's ``integrateMeasurement(acc, gyro, dt)``); ``"interpolate"``: filled with samples linear
+      between the two either side (``ImuSequence.bridge_gaps``: the trapezoidal rule over the gap; batch only).
     - ``graph``: robust loss, lever arm, priors and the solver; ``online``: the smoother of ``OnlineFusion``;
       ``motion``: the learned motion factors, used when a motion model is given (``MotionSettings``).
     """
@@ -222,6 +228,7 @@ class FuseConfig:
     keyframe_s: float | None = None
     estimate_bias: bool = False
     still_start: bool = True
+    imu_gaps: str = "hold"
     bias: BiasStates = field(default_factory=BiasStates)
     graph: FusionSettings = field(default_factory=FusionSettings)
     online: OnlineSettings = field(default_factory=OnlineSettings)
@@ -236,6 +243,8 @@ class FuseConfig:
             raise ConfigError(f"keyframe_s must be a positive interval (s) or null, got {self.keyframe_s!r}")
         if not isinstance(self.still_start, bool):
             raise ConfigError(f"still_start must be true or false, got {self.still_start!r}")
+        if self.imu_gaps not in IMU_GAPS:
+            raise ConfigError(f"imu_gaps must be one of {', '.join(IMU_GAPS)}, got {self.imu_gaps!r}")
 
     @property
     def noise_density(self) -> tuple[float, float]:

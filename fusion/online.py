@@ -134,6 +134,11 @@ class OnlineFusion:
             )
         if motion_model is not None and motion_model.training:
             raise InputError("OnlineFusion: call motion_model.eval() first (streaming needs eval mode)")
+        if config.imu_gaps != "hold":
+            raise InputError(
+                f"OnlineFusion: imu_gaps {config.imu_gaps!r} is batch only (airimu fuse without --online); a stream "
+                "integrates a gap with the sample before it held: set imu_gaps: hold"
+            )
         if motion_model is not None and config.motion.mount_sigma_rad is not None:
             raise InputError(
                 "OnlineFusion: motion.mount_sigma_rad (a mounting-rotation state) is batch only (airimu fuse without "

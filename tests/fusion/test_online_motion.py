@@ -85,3 +85,10 @@ def test_a_mount_state_is_refused_online():
     config = FuseConfig(motion=MotionSettings(mount_sigma_rad=0.01))
     with pytest.raises(InputError, match="mount_sigma_rad"):
         OnlineFusion(None, seq.gravity, gtsam.NavState(pose, seq.gt.vel[0]), config, motion_model=TruthMotion(seq))
+
+
+def test_interpolated_imu_gaps_are_refused_online():
+    seq = simulate("drone", duration_s=2.0, seed=1)
+    pose = gtsam.Pose3(gtsam.Rot3(seq.gt.rot[0]), seq.gt.pos[0])
+    with pytest.raises(InputError, match="imu_gaps"):
+        OnlineFusion(None, seq.gravity, gtsam.NavState(pose, seq.gt.vel[0]), FuseConfig(imu_gaps="interpolate"))

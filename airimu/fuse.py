@@ -33,7 +33,7 @@ import numpy as np
 
 from airimu_core.errors import ConfigError, DataError, InputError
 from airimu_core.motion import BodyVelocities
-from airimu_core.sequence import GPS_SIGMA_UNKNOWN_M, GpsFixes, ImuSequence, gap_indices
+from airimu_core.sequence import GPS_SIGMA_UNKNOWN_M, GpsFixes, ImuSequence
 from factors.noise import noise_mismatch
 from fusion.config import FuseConfig
 from fusion.graph import Solution, Trajectory
@@ -213,15 +213,10 @@ def fuse(
     config = config or FuseConfig()
     where = sequence.source or sequence.name
     if config.imu_gaps == "interpolate":
-        gaps = gap_indices(sequence.t)
-        if gaps.size:
-            log.info(
-                "%s: %d gap(s) in the IMU samples (longest %.2f s) filled by linear interpolation (imu_gaps)",
-                where,
-                gaps.size,
-                float(np.diff(sequence.t)[gaps].max()),
-            )
-            sequence = sequence.bridge_gaps()
+        bridged = sequence.bridge_gaps()
+        if bridged is not sequence:
+            log.info("%s: the IMU's gaps filled with %d samples (imu_gaps)", where, len(bridged.t) - len(sequence.t))
+            sequence = bridged
     fixes = gps if gps is not None else sequence.gps
     if model is not None and not config.noise_is_default:
         raise InputError(

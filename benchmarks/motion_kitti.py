@@ -44,7 +44,7 @@ import numpy as np
 from airimu.experiments.pgo import GTSAM_EXAMPLE, gps_for
 from airimu.fuse import fuse, imu_rate_trajectory
 from airimu_core.errors import DataError, InputError
-from fusion.config import FuseConfig, MotionSettings
+from fusion.config import IMU_GAPS, FuseConfig, MotionSettings
 from learned_imu.config import load_config
 from learned_imu.evaluation.kitti_odometry import relative_errors, subsample_indices
 from learned_imu.network.checkpoint import model_from_checkpoint, motion_from_checkpoint
@@ -210,7 +210,7 @@ def main() -> None:
     )
     parser.add_argument(
         "--imu-gaps",
-        choices=("hold", "interpolate"),
+        choices=IMU_GAPS,
         default="hold",
         help="imu_gaps of the t_rel rows: how a gap of the IMU is integrated",
     )

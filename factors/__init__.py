@@ -2,7 +2,7 @@
 
 from airimu_core.errors import ExportError, GraphError, PimLayoutError
 from airimu_core.export import Export, ExportTruth, load_export
-from factors.checks import check_anchored, check_values, solve_or_explain
+from factors.checks import check_anchored, check_values, poses_of, solve_or_explain
 from factors.export_file import from_export
 from factors.gps import GpsFactor, gps_noise
 from factors.imu import LearnedImuFactor
@@ -24,6 +24,7 @@ __all__ = [
     "Relinearised",
     "check_anchored",
     "check_values",
+    "poses_of",
     "solve_or_explain",
     "from_export",
     "gps_noise",

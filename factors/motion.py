@@ -32,7 +32,7 @@ import numpy as np
 
 from airimu_core.checks import SYMMETRY_TOL
 from airimu_core.errors import GraphError, InputError, real_array
-from factors.checks import is_indeterminate, key_name
+from factors.checks import is_indeterminate, key_rows, poses_of
 
 # GTSAM's LevenbergMarquardtParams.minModelFidelity default (its Python params have no getter): a step is kept when
 # the actual decrease is above this fraction of the linearised model's
@@ -183,8 +183,7 @@ class MotionTerms:
     def _whitened(self, values: gtsam.Values) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Rotations R (K, 3, 3), u = R^T v (K, 3) and the whitened errors W (M^T u - v_body) (K, 3) (M: the mount
         rotation, identity without one)."""
-        poses = np.array(gtsam.utilities.allPose3s(values).keys(), dtype=np.uint64)
-        rot = gtsam.utilities.extractPose3(values)[_rows(poses, self.pose_keys, "Pose3"), :9].reshape(-1, 3, 3)
+        rot = poses_of(values, self.pose_keys, "MotionTerms")[:, :9].reshape(-1, 3, 3)
         vel = self._velocities(values)
         v_in_body = np.einsum("kji,kj->ki", rot, vel)
         mount = self._mount(values)
@@ -200,7 +199,7 @@ class MotionTerms:
             named = keys[(keys >> np.uint64(56)) == char]
             rows = gtsam.utilities.extractVectors(values, chr(int(char)))
             if rows.shape == (len(named), 3):
-                out[mine] = rows[_rows(named, self.vel_keys[mine], "velocity")]
+                out[mine] = rows[key_rows(named, self.vel_keys[mine], "velocity", "MotionTerms")]
             else:  # the character also names other values: one by one
                 out[mine] = [values.atVector(int(key)) for key in self.vel_keys[mine]]
         return out
@@ -212,16 +211,6 @@ def _skew(w: np.ndarray) -> np.ndarray:
     out[:, 0, 1], out[:, 0, 2], out[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
     out[:, 1, 0], out[:, 2, 0], out[:, 2, 1] = w[:, 2], -w[:, 1], w[:, 0]
     return out
-
-
-def _rows(available: np.ndarray, wanted: np.ndarray, kind: str) -> np.ndarray:
-    """Positions of ``wanted`` keys in the sorted ``available`` ones; a ``GraphError`` names the first missing."""
-    rows = np.minimum(np.searchsorted(available, wanted), max(len(available) - 1, 0))
-    missing = available[rows] != wanted if len(available) else np.ones(len(wanted), bool)
-    if missing.any():
-        key = int(wanted[np.flatnonzero(missing)[0]])
-        raise GraphError(f"MotionTerms: the values have no {kind} for {key_name(key)}")
-    return rows
 
 
 @dataclass(frozen=True, eq=False)
@@ -241,12 +230,13 @@ def solve_with_python_factors(
 ) -> Solution:
     """``gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()``, stepped from Python so that Python
     factors (``MotionFactor``, ``LearnedImuFactor``) get the ``Values`` by reference instead of a copy each
-    (module docstring). GTSAM's rules: COLAMD ordering (of ``graph``), identity damping ``sqrt(lambda) I`` per
-    variable, multifrontal Cholesky (or QR, as ``params`` say; an indeterminate damped system is a failed try), a
-    step kept when the model fidelity exceeds ``minModelFidelity`` (then lambda / factor), else lambda * factor up to
-    ``lambdaUpperBound``; stop on the relative / absolute decrease or ``maxIterations``. Only those modes: diagonal
-    damping, an adaptive lambda factor, another linear solver or ordering raise. (GTSAM 4.3's own LM eliminates in
-    place, which Python cannot call: on a 1,000-keyframe IMU + GPS graph this loop takes ~1.4x its time.)
+    (module docstring). GTSAM's rules: COLAMD ordering (of the whole linear system), identity damping
+    ``sqrt(lambda) I`` per variable, multifrontal Cholesky (or QR, as ``params`` say; an indeterminate damped system
+    is a failed try), a step kept when the model fidelity exceeds ``minModelFidelity`` (then lambda / factor), else
+    lambda * factor up to ``lambdaUpperBound``; stop on the relative / absolute decrease or ``maxIterations``. Only
+    those modes: diagonal damping, an adaptive lambda factor, another linear solver or ordering raise. (GTSAM 4.3's
+    own LM eliminates in place, which Python cannot call: on a 1,000-keyframe IMU + GPS graph this loop takes ~1.4x
+    its time.)
 
     ``extra``: terms evaluated in bulk besides ``graph``, each with ``error(values) -> float`` and
     ``linearize(values) -> gtsam.GaussianFactorGraph`` (whitened, as a factor's ``linearize`` gives it)."""
@@ -273,10 +263,11 @@ def solve_with_python_factors(
             linear.push_back(term.linearize(at))
         return linear
 
-    # COLAMD of the whole system, as GTSAM's LM orders a graph holding every factor: a variable only ``extra`` ties
-    # to the rest (a motion factors' mounting rotation) would otherwise be eliminated first, filling in everything
+    # COLAMD of the whole system, as GTSAM's LM orders a graph holding every factor: ordering ``graph`` alone would
+    # eliminate a variable only ``extra`` ties to the rest (the motion factors' mounting rotation) first, filling in
+    # everything (KITTI seq 04: 56 s against 1.4 s)
     linear = linearize(values)
-    ordering = gtsam.Ordering.ColamdGaussianFactorGraph(linear) if extra else graph.orderingCOLAMD()
+    ordering = gtsam.Ordering.ColamdGaussianFactorGraph(linear)
     if params.getLinearSolverType() == "MULTIFRONTAL_QR":
 
         def solve_linear(system):

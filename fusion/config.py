@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -171,32 +172,34 @@ class MotionSettings:
             raise ConfigError(f"motion.keyframe_s must be a positive interval (s) or null, got {self.keyframe_s!r}")
         if not (isinstance(self.passes, int) and 1 <= self.passes <= 10):
             raise ConfigError(f"motion.passes must be a whole number in [1, 10], got {self.passes!r}")
-        scale = self.cov_scale
-        numbers = list(scale) if isinstance(scale, (tuple, list)) else [scale]
-        if not (
-            len(numbers) in (1, 3)
-            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in numbers)
-            and all(math.isfinite(v) and v > 0 for v in numbers)
-        ):
+        scale = _one_or_three(self.cov_scale, lambda v: v > 0)
+        if scale is None:
             raise ConfigError(
                 f"motion.cov_scale must be a positive factor or three (one per body axis), got {self.cov_scale!r}"
             )
-        # one number however given (a list of one from YAML or argparse), three as a tuple
-        object.__setattr__(self, "cov_scale", float(numbers[0]) if len(numbers) == 1 else tuple(map(float, numbers)))
+        object.__setattr__(self, "cov_scale", scale)
         if self.mount_sigma_rad is not None:
-            sigma = self.mount_sigma_rad
-            numbers = list(sigma) if isinstance(sigma, (tuple, list)) else [sigma]
-            if not (
-                len(numbers) in (1, 3)
-                and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in numbers)
-                and all(math.isfinite(v) and 0 < v <= 1 for v in numbers)
-            ):
+            sigma = _one_or_three(self.mount_sigma_rad, lambda v: 0 < v <= 1)
+            if sigma is None:
                 raise ConfigError(
                     f"motion.mount_sigma_rad must be null or a sigma in (0, 1] rad, one or three (roll, pitch, yaw), "
                     f"got {self.mount_sigma_rad!r}"
                 )
-            value = float(numbers[0]) if len(numbers) == 1 else tuple(map(float, numbers))
-            object.__setattr__(self, "mount_sigma_rad", value)
+            object.__setattr__(self, "mount_sigma_rad", sigma)
+
+
+def _one_or_three(value, allowed: Callable[[float], bool]) -> float | tuple[float, float, float] | None:
+    """A setting of one number or three (one per axis) as the dataclass holds it: one number however given (a list of
+    one from YAML or argparse), three as a tuple of floats; None when it is neither or a number is not finite and
+    ``allowed``."""
+    numbers = list(value) if isinstance(value, (tuple, list)) else [value]
+    if not (
+        len(numbers) in (1, 3)
+        and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in numbers)
+        and all(math.isfinite(v) and allowed(v) for v in numbers)
+    ):
+        return None
+    return float(numbers[0]) if len(numbers) == 1 else tuple(map(float, numbers))
 
 
 IMU_GAPS = ("hold", "interpolate")  # FuseConfig.imu_gaps

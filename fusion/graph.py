@@ -44,6 +44,7 @@ from factors import (
     gps_noise,
     load_export,
     motion_factors,
+    poses_of,
     solve_or_explain,
     solve_with_python_factors,
 )
@@ -206,14 +207,13 @@ def build_graph(
         raise InputError(f"{export.path}: no GPS fix lies within half a keyframe interval of a keyframe")
     mount = M(0) if motion is not None and mount_sigma_rad is not None else None
     moving = keyframe_motion_factors(motion, times, mount) if motion is not None else []
-    for factor in moving:
-        graph.add(factor)
-    if mount is not None and moving:
+    if not moving:
+        mount = None
+    elif mount is not None:  # the mounting rotation's prior, carried with the motion factors
         sigmas = np.broadcast_to(np.asarray(mount_sigma_rad, dtype=float), (3,))
         moving.append(gtsam.PriorFactorRot3(mount, gtsam.Rot3(), gtsam.noiseModel.Diagonal.Sigmas(sigmas)))
-        graph.add(moving[-1])
-    else:
-        mount = None
+    for factor in moving:
+        graph.add(factor)
 
     first = known_first_state(export, initial_state)
     if first is None and not gps_factors:
@@ -369,14 +369,8 @@ def keyframe_motion_factors(motion: BodyVelocities, times: np.ndarray, mount_key
 
 def trajectory_of(values: gtsam.Values, times: np.ndarray, marginals: gtsam.Marginals | None = None) -> Trajectory:
     """Keyframe states X(k), V(k) of ``values`` (and position marginals if ``marginals`` is given)."""
-    keys = np.array([X(k) for k in range(len(times))], dtype=np.uint64)
-    held = np.array(gtsam.utilities.allPose3s(values).keys(), dtype=np.uint64)  # sorted, as extractPose3's rows
-    rows = np.minimum(np.searchsorted(held, keys), max(len(held) - 1, 0))
-    if len(keys) and (not len(held) or np.any(held[rows] != keys)):
-        missing = int(keys[np.flatnonzero(held[rows] != keys)[0]]) if len(held) else int(keys[0])
-        raise GraphError(f"trajectory_of: the values have no Pose3 for {gtsam.DefaultKeyFormatter(missing)}")
-    table = gtsam.utilities.extractPose3(values)[rows] if len(keys) else np.zeros((0, 12))
-    rot, pos = table[:, :9].reshape(-1, 3, 3), table[:, 9:]  # R row-major, then the translation
+    table = poses_of(values, np.array([X(k) for k in range(len(times))], dtype=np.uint64), "trajectory_of")
+    rot, pos = table[:, :9].reshape(-1, 3, 3), table[:, 9:]
     pos_cov = None
     if marginals is not None:  # Pose3 tangent is [rotation, translation]; translation in the body frame
         pos_cov = np.array([r @ marginals.marginalCovariance(X(k))[3:, 3:] @ r.T for k, r in enumerate(rot)])

@@ -39,6 +39,7 @@ from fusion.config import FuseConfig
 from fusion.graph import Solution, Trajectory
 from fusion.solve import solve_export
 from fusion.still import StillStart, still_start
+from learned_imu.datasets._tilt import GYRO_READINGS, check_gyro_tilt
 from learned_imu.datasets.gps import gps_file_layout, read_gps_csv
 from learned_imu.export import (
     check_keyframe_interval,
@@ -231,6 +232,8 @@ def fuse(
             raise DataError(where, "gps", "no GPS fix to fuse: give the start state (--start) to dead-reckon")
         if motion_model is None:
             log.warning("%s: no GPS and no motion model: the result is integrated IMU, which drifts fast", where)
+        if sequence.gt is None:  # nothing else checks the gyro's unit here (the readers do, for files)
+            check_gyro_tilt(sequence.t, sequence.gyro, sequence.acc, where)
     else:
         sequence = dataclasses.replace(sequence, gps=fixes)
         sequence = fixes_on_samples(sequence)  # a keyframe at every fix: only fixes on an IMU sample
@@ -500,11 +503,6 @@ def check_gps_altitude(sequence: ImuSequence, path: str | Path, fixes: GpsFixes,
 
 
 GYRO_CHECK_MAX_SPACING_S = 2.0  # check_imu_units needs fixes at least this often (median spacing)
-GYRO_READINGS = {  # what the gyro as read may really be -> (factor to rad/s, the fix)
-    "deg/s": (np.pi / 180.0, "read it with --reader-option gyro_unit=deg/s"),
-    "mrad/s": (1e-3, "divide the gyro columns by 1000 (rad/s expected)"),
-    "rad/s converted as if deg/s": (180.0 / np.pi, "read it without gyro_unit=deg/s (it is already rad/s)"),
-}
 
 
 def check_imu_units(sequence: ImuSequence, fixes: GpsFixes, where: object) -> None:

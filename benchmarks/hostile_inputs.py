@@ -9,7 +9,9 @@ GPS: the drive's ground truth at 1 Hz with 0.5 m noise (as a user's CSV would ca
 ``airimu fuse`` runs on a GPS file before fusing (``check_gps_units``, the altitude alone in feet or km included,
 ``check_gps_times``, ``check_gps_clock``, ``read_gps_csv``'s sigma check); models: ``check_model_against_raw`` with an
 untrained AirIMU network whose gyro output is offset; the gyro's unit and sign: ``check_imu_units`` (the track's
-turns against the gyro's, and the track explained by the gyro as read and in other units; no ground truth).
+turns against the gyro's, and the track explained by the gyro as read and in other units; no ground truth); and
+without GPS ``check_gyro_tilt`` (the gyro's rotations against the gravity the accelerometer sees, as the readers
+and ``fuse()`` run it on a log without ground truth; ``benchmarks/gyro_tilt.py`` runs it on every shared log).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from airimu.fuse import check_gps_clock, check_gps_times, check_gps_units, check
 from airimu_core.errors import AirImuError
 from airimu_core.sequence import GpsFixes
 from learned_imu.datasets._assemble import ReadChecks
+from learned_imu.datasets._tilt import check_gyro_tilt
 from learned_imu.datasets.gps import read_gps_csv
 from learned_imu.datasets.kitti_raw import read_kitti_raw
 
@@ -118,6 +121,9 @@ def cases(sequence, folder: Path):
     ):
         wrong = dataclasses.replace(blind, gyro=blind.gyro * scale)
         out.append(("gyro unit (GPS track)", label, lambda w=wrong: check_imu_units(w, fixes, "imu.csv"), cause))
+        if scale > 0:  # without GPS: the gyro's rotations against gravity (what a reader or fuse() runs then)
+            tilt = lambda w=wrong: check_gyro_tilt(w.t, w.gyro, w.acc, "imu.csv")  # noqa: E731
+            out.append(("gyro unit (gravity, no GPS)", label, tilt, cause))
     return out
 
 

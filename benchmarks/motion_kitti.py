@@ -104,12 +104,15 @@ def outage_rows(seq, net, motion_config: FuseConfig, correction=None) -> list[di
     ``correction``: the fold's AirIMU model, for the two rows with its corrected samples and learned covariance."""
     span = float(seq.t[-1] - seq.t[0])
     fixes = gps_for(seq, 1.0, GPS_SIGMA_M, seed=0, source="simulated")[0]  # 1-Hz fixes from the ground truth
-    raw = FuseConfig(gyro_noise_density=GTSAM_NOISE[0], acc_noise_density=GTSAM_NOISE[1], keyframe_s=1.0)
+    raw = FuseConfig(
+        gyro_noise_density=GTSAM_NOISE[0], acc_noise_density=GTSAM_NOISE[1], keyframe_s=1.0,
+        imu_gaps=motion_config.imu_gaps,
+    )  # fmt: skip
     gtsam_like = dataclasses.replace(raw, estimate_bias=True, bias=GTSAM_EXAMPLE.bias)
     settings = {"GTSAM settings": (gtsam_like, None), "raw IMU": (raw, None)}
     settings["raw IMU + motion"] = (dataclasses.replace(raw, motion=motion_config.motion), net)
     if correction is not None:
-        learned = FuseConfig(keyframe_s=1.0)  # the noise is the model's
+        learned = FuseConfig(keyframe_s=1.0, imu_gaps=motion_config.imu_gaps)  # the noise is the model's
         settings["AirIMU"] = (learned, None)
         settings["AirIMU + motion"] = (dataclasses.replace(learned, motion=motion_config.motion), net)
     rows = []
@@ -134,10 +137,12 @@ def outage_rows(seq, net, motion_config: FuseConfig, correction=None) -> list[di
     return rows
 
 
-def gtsam_drive_rows(net, root: Path, motion: MotionSettings, correction=None, every: int = 10) -> list[dict]:
+def gtsam_drive_rows(
+    net, root: Path, motion: MotionSettings, correction=None, every: int = 10, imu_gaps: str = "hold"
+) -> list[dict]:
     """The ``--gtsam-drive`` rows (module docstring); ``motion``: the motion factors' settings (``--cov-scale``);
     ``correction``: fold 1's AirIMU model, for two more rows with its corrected samples and learned noise; ``every``:
-    one fix in this many fused."""
+    one fix in this many fused; ``imu_gaps``: ``FuseConfig.imu_gaps``."""
     from learned_imu.datasets import read_sequence
 
     seq = read_sequence(
@@ -151,7 +156,8 @@ def gtsam_drive_rows(net, root: Path, motion: MotionSettings, correction=None, e
     if correction is not None:
         settings += [("AirIMU", correction, None), ("AirIMU + motion", correction, net)]
     for name, airimu, model in settings:
-        result = fuse(seq, fused, airimu, FuseConfig(keyframe_s=1.0, motion=motion), motion_model=model)
+        config = FuseConfig(keyframe_s=1.0, imu_gaps=imu_gaps, motion=motion)
+        result = fuse(seq, fused, airimu, config, motion_model=model)
         keyframes = result.solution.trajectory
         inside = (gps.t >= keyframes.t[0]) & (gps.t <= keyframes.t[-1])
         at_fix = np.column_stack([np.interp(gps.t[inside], keyframes.t, keyframes.pos[:, i]) for i in range(3)])
@@ -212,7 +218,7 @@ def main() -> None:
         "--imu-gaps",
         choices=IMU_GAPS,
         default="hold",
-        help="imu_gaps of the t_rel rows: how a gap of the IMU is integrated",
+        help="FuseConfig.imu_gaps of every row: how a gap of the IMU is integrated",
     )
     parser.add_argument("--outages", action="store_true", help="also the GPS-outage rows")
     parser.add_argument("--gtsam-drive", action="store_true", help="only GTSAM's drive, one fix in ten (fold 1)")
@@ -244,7 +250,8 @@ def main() -> None:
                 correction, corrected_by = model_from_checkpoint(dict(args.correction)["1"])
                 if any("2011_10_03_drive_0027" in spec.path for spec in corrected_by.data.train):
                     raise SystemExit(f"{dict(args.correction)['1']} was trained on GTSAM's drive")
-            rows = gtsam_drive_rows(net, Path(fold_config.data.root), motion, correction, args.fix_every)
+            root = Path(fold_config.data.root)
+            rows = gtsam_drive_rows(net, root, motion, correction, args.fix_every, args.imu_gaps)
         args.fold = []
     for fold, checkpoint in args.fold:
         net, trained = motion_from_checkpoint(checkpoint)

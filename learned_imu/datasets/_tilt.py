@@ -1,0 +1,130 @@
+"""Is the gyro in rad/s? Its rotations against the gravity the accelerometer sees, with no ground truth and no GPS.
+
+Over a stretch of ``TILT_STRETCH_S`` the gyro, integrated from the stretch's first sample, carries every specific
+force sample into that first sample's frame; averaged over a window of ``TILT_WINDOW_S`` the result is gravity's
+reaction plus the window's velocity change over its length, so on a correctly read log the windows' means agree to
+about the platform's own accelerations (the median over stretches of their RMS spread about the stretch's mean,
+m/s^2). A gyro read 57x or 1000x too large (deg/s or mrad/s taken for rad/s) turns every wobble of a car's
+suspension or a drone's attitude into tens of degrees and the means wander by several m/s^2. The gyro's constant
+bias is fitted first (Gauss-Newton on the spread, the preintegration's bias Jacobian), since a raw MEMS gyro's bias
+(EuRoC: 0.02-0.08 rad/s) alone tilts a 20-s stretch by up to a radian; its median is not its bias on an aggressive
+flight (EuRoC V1_03: 0.03 rad/s off).
+
+``check_gyro_tilt`` refuses a gyro whose spread as read is at least ``TILT_MIN_SPREAD`` and ``TILT_RATIO`` times
+that of another reading (``GYRO_READINGS``). Both rules are needed: a drone's accelerometer sees its thrust, always
+near the body's z axis, so "no rotation at all" (any reading that shrinks the gyro) explains a drone's or a hand-held
+log's specific force about as well as the right gyro or better (EuRoC V1_03 as read 0.29, shrunk 57x 0.16 m/s^2),
+and only an as-read spread no real platform makes says anything. For the same reason a gyro read too small (a rad/s
+file converted as if deg/s) shows only on a platform that tilts (BROAD's rotation trials), not on a car or a drone.
+Measured on the shared recordings (2026-12-07, ``benchmarks/hostile_inputs.py``): BENCHMARKS.md "Hostile inputs".
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from airimu_core.errors import DataError
+from airimu_core.sequence import gap_indices
+
+TILT_STRETCH_S = 20.0  # the gyro integrated over this long (its bias fitted: drift over it stays small)
+TILT_WINDOW_S = 4.0  # the specific force averaged over this long (a platform's accelerations average out)
+TILT_MIN_STRETCHES = 3  # fewer stretches without a gap: the bias is not determined, the check does not run
+TILT_MAX_STRETCHES = 24  # at most this many, evenly spread (the cost of a long log)
+TILT_BIAS_ITERATIONS = 3
+TILT_MIN_SPREAD = 1.0  # m/s^2: below this the gyro as read is not refused (right logs: 0.07-0.66 as read)
+TILT_RATIO = 3.0  # ... and another reading must spread this many times less
+
+GYRO_READINGS = {  # what a gyro read as rad/s may really be -> (factor to rad/s, the fix)
+    "deg/s": (np.pi / 180.0, "read it with gyro_unit='deg/s' (airimu: --reader-option gyro_unit=deg/s)"),
+    "mrad/s": (1e-3, "divide the gyro columns by 1000 (rad/s expected)"),
+    "rad/s converted as if deg/s": (180.0 / np.pi, "read it without gyro_unit=deg/s (it is already rad/s)"),
+}
+
+
+@dataclass(frozen=True)
+class TiltFit:
+    """``gravity_spread``'s answer: the median over stretches of the windows' RMS spread (m/s^2), the fitted gyro
+    bias (rad/s, IMU frame) and how many stretches were used."""
+
+    spread: float
+    bias: np.ndarray
+    stretches: int
+
+
+def _stretch_starts(t: np.ndarray, length: int) -> np.ndarray:
+    """First samples of non-overlapping stretches of ``length`` samples without a gap, at most
+    ``TILT_MAX_STRETCHES`` of them, evenly spread over the log."""
+    gaps = gap_indices(t)
+    starts, k = [], 0
+    while k + length <= len(t):
+        inside = gaps[(gaps >= k) & (gaps < k + length - 1)]
+        if inside.size:
+            k = int(inside[-1]) + 1
+            continue
+        starts.append(k)
+        k += length
+    starts = np.asarray(starts, dtype=int)
+    if len(starts) > TILT_MAX_STRETCHES:
+        starts = starts[np.linspace(0, len(starts) - 1, TILT_MAX_STRETCHES).round().astype(int)]
+    return starts
+
+
+def gravity_spread(t: np.ndarray, gyro: np.ndarray, acc: np.ndarray) -> TiltFit | None:
+    """The module docstring's statistic for ``gyro`` (N, 3) rad/s and ``acc`` (N, 3) m/s^2 at times ``t`` (s);
+    None with fewer than ``TILT_MIN_STRETCHES`` stretches."""
+    import torch
+
+    from learned_imu.geometry.preintegration import preintegrate
+
+    dt = float(np.median(np.diff(t)))
+    per_window = max(int(round(TILT_WINDOW_S / dt)), 1)
+    length = per_window * int(round(TILT_STRETCH_S / TILT_WINDOW_S))
+    starts = _stretch_starts(t, length)
+    if len(starts) < TILT_MIN_STRETCHES:
+        return None
+    rows = starts[:, None] + np.arange(length)[None, :]
+    samples_gyro, samples_acc = torch.as_tensor(gyro[rows]), torch.as_tensor(acc[rows])
+    steps = torch.as_tensor(np.diff(t[rows], axis=1, append=t[rows][:, -1:] + dt))
+    at = list(range(per_window - 1, length, per_window))
+    bias = np.zeros(3)
+    for iteration in range(TILT_BIAS_ITERATIONS + 1):
+        pre = preintegrate(samples_gyro - torch.as_tensor(bias), samples_acc, steps, at=at, bias_jacobian=True)
+        vel = np.concatenate([np.zeros((len(starts), 1, 3)), pre.vel.numpy()], axis=1)
+        jac = pre.bias_jacobian.numpy()[..., 6:9, 3:6]  # d velocity / d gyro bias (bias subtracted)
+        jac = np.concatenate([np.zeros((len(starts), 1, 3, 3)), jac], axis=1)
+        means, mean_jac = np.diff(vel, axis=1) / TILT_WINDOW_S, np.diff(jac, axis=1) / TILT_WINDOW_S
+        deviation = means - means.mean(axis=1, keepdims=True)
+        if iteration == TILT_BIAS_ITERATIONS:
+            break
+        jac_dev = (mean_jac - mean_jac.mean(axis=1, keepdims=True)).reshape(-1, 3)
+        bias = bias + np.linalg.lstsq(jac_dev, -deviation.reshape(-1), rcond=1e-6)[0]
+    per_stretch = np.sqrt((deviation**2).sum(axis=-1).mean(axis=1))
+    return TiltFit(float(np.median(per_stretch)), bias, len(starts))
+
+
+def check_gyro_tilt(t: np.ndarray, gyro: np.ndarray, acc: np.ndarray, source: object) -> None:
+    """Refuse a gyro that is not in rad/s by the module docstring's rule, naming ``source``, the gyro, every reading
+    that fits ``TILT_RATIO`` times better than as read, best first, and its fix. Silent where the log is too short
+    or nothing is decided."""
+    as_read = gravity_spread(t, gyro, acc)
+    if as_read is None or as_read.spread < TILT_MIN_SPREAD:
+        return
+    spreads = {unit: gravity_spread(t, gyro * factor, acc).spread for unit, (factor, _) in GYRO_READINGS.items()}
+    best = min(spreads.values())
+    if best * TILT_RATIO > as_read.spread:
+        return
+    # every reading that fits TILT_RATIO times better is named: deg/s and mrad/s both leave a drone nearly unturned,
+    # and "no rotation" explains its thrust-borne specific force best (a deg/s file on EuRoC fits mrad/s better)
+    ranked = sorted(spreads.items(), key=lambda item: item[1])
+    alike = [unit for unit, spread in ranked if spread * TILT_RATIO <= as_read.spread]
+    fixes = "; or ".join(GYRO_READINGS[unit][1] for unit in alike)
+    raise DataError(
+        source,
+        "gyro",
+        f"the gyro as read does not follow the gravity the accelerometer sees: integrated over {TILT_STRETCH_S:g}-s "
+        f"stretches it scatters the specific force's {TILT_WINDOW_S:g}-s means by {as_read.spread:.3g} m/s^2, "
+        f"as {alike[0]} by {best:.3g} (a platform's own accelerations: about 1 or less): gyro in "
+        f"{' or '.join(alike)}? {fixes[0].upper()}{fixes[1:]}",
+    )

@@ -5,7 +5,7 @@ converted as if deg/s); per log the spread as read (m/s^2) and the outcome, then
     python benchmarks/gyro_tilt.py [--json F]
 
 Outcomes: "accepted" (a control that passes), "false refusal" (a control refused), "refused, right" (the message
-names the unit of the mistake), "wrong cause", "undecided" (the log has fewer than three 20-s stretches without a
+names the unit of the mistake), "wrong cause", "undecided" (the log has fewer than three 10-s stretches without a
 gap: not checked), "missed" (checked, nothing said).
 """
 
@@ -21,7 +21,7 @@ import numpy as np
 
 from airimu_core.errors import DataError
 from learned_imu.datasets import read_sequence
-from learned_imu.datasets._tilt import check_gyro_tilt, gravity_spread
+from learned_imu.datasets._tilt import TILT_SHORT, check_gyro_tilt, gravity_spread
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 MISTAKES = {"as read": (1.0, None), "deg/s": (180.0 / np.pi, "deg/s"), "mrad/s": (1000.0, "mrad/s")}
@@ -43,7 +43,8 @@ def logs():
 
 
 def outcome(seq, factor: float, cause: str | None) -> tuple[str, float | None]:
-    fit = gravity_spread(seq.t, seq.gyro * factor, seq.acc)
+    gyro = seq.gyro * factor
+    fit = gravity_spread(seq.t, gyro, seq.acc) or gravity_spread(seq.t, gyro, seq.acc, *TILT_SHORT)
     try:
         check_gyro_tilt(seq.t, seq.gyro * factor, seq.acc, seq.source)
     except DataError as error:

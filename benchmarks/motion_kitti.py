@@ -76,11 +76,17 @@ def sequence_range(seq, drive_csv: Path, first: int, last: int):
     return seq.between(t[first], t[min(last, len(t) - 1)])
 
 
+def truth_rows(seq, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of ``seq`` at the times ``t`` and where they hold valid ground truth at exactly that time: a sample that
+    ``imu_gaps: interpolate`` filled into a gap has none (its nearest later row is 1.6 s on)."""
+    at = np.minimum(np.searchsorted(seq.t, t), len(seq.t) - 1)
+    return at, seq.gt.valid[at] & (np.abs(seq.t[at] - t) < 1e-9)
+
+
 def scores(seq, result) -> dict:
     """t_rel / r_rel of a fused result against the ground truth, at 10 Hz."""
     dense = imu_rate_trajectory(result)
-    at = np.searchsorted(seq.t, dense.t)
-    keep = seq.gt.valid[at]
+    at, keep = truth_rows(seq, dense.t)
     t, at = dense.t[keep], at[keep]
     pick = ticks_10hz(t)
     errors = relative_errors(seq.gt.rot[at[pick]], seq.gt.pos[at[pick]], dense.rot[keep][pick], dense.pos[keep][pick])
@@ -130,7 +136,12 @@ def outage_rows(seq, net, motion_config: FuseConfig, correction=None) -> list[di
                 row[name] = "refused"
                 log.info("%s, %s: %s", seq.name, name, error)
                 continue
-            ends = [np.linalg.norm(pos - seq.gt.pos[np.searchsorted(seq.t, t)]) for t, pos in result.outage_ends]
+            valid = seq.gt.valid  # an outage may end on a filled sample: the truth between its neighbours
+            truth = [
+                np.array([np.interp(t, seq.t[valid], seq.gt.pos[valid, i]) for i in range(3)])
+                for t, _ in result.outage_ends
+            ]
+            ends = [np.linalg.norm(pos - at) for (_, pos), at in zip(result.outage_ends, truth, strict=True)]
             row[name] = round(float(np.mean(ends)), 3)
         rows.append(row)
         print(json.dumps(row), flush=True)
@@ -175,8 +186,8 @@ def ate_between_fixes(seq, result, fused) -> float:
     """ATE (m, unaligned) of a fused result's IMU-rate track against the ground truth between the first and the last
     fused fix."""
     dense = imu_rate_trajectory(result)
-    at = np.searchsorted(seq.t, dense.t)
-    keep = seq.gt.valid[at] & (dense.t >= fused.t[0]) & (dense.t <= fused.t[-1])
+    at, keep = truth_rows(seq, dense.t)
+    keep &= (dense.t >= fused.t[0]) & (dense.t <= fused.t[-1])
     return round(float(np.sqrt(np.mean(np.sum((dense.pos[keep] - seq.gt.pos[at[keep]]) ** 2, 1)))), 3)
 
 

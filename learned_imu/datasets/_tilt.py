@@ -16,7 +16,9 @@ near the body's z axis, so "no rotation at all" (any reading that shrinks the gy
 log's specific force about as well as the right gyro or better (EuRoC V1_03 as read 0.29, shrunk 57x 0.16 m/s^2),
 and only an as-read spread no real platform makes says anything. For the same reason a gyro read too small (a rad/s
 file converted as if deg/s) shows only on a platform that tilts (BROAD's rotation trials), not on a car or a drone.
-Measured on the shared recordings (2026-12-07, ``benchmarks/hostile_inputs.py``): BENCHMARKS.md "Hostile inputs".
+A log with fewer than ``TILT_MIN_STRETCHES`` stretches without a gap is checked over ``TILT_SHORT`` instead; a
+shorter one is not checked. Measured on every shared recording (2026-12-07, ``benchmarks/gyro_tilt.py``):
+BENCHMARKS.md "Hostile inputs".
 """
 
 from __future__ import annotations
@@ -31,9 +33,10 @@ from airimu_core.sequence import gap_indices
 TILT_STRETCH_S = 20.0  # the gyro integrated over this long (its bias fitted: drift over it stays small)
 TILT_WINDOW_S = 4.0  # the specific force averaged over this long (a platform's accelerations average out)
 TILT_MIN_STRETCHES = 3  # fewer stretches without a gap: the bias is not determined, the check does not run
+TILT_SHORT = (10.0, 2.0)  # stretch and window (s) of a log too short for three stretches of TILT_STRETCH_S
 TILT_MAX_STRETCHES = 24  # at most this many, evenly spread (the cost of a long log)
 TILT_BIAS_ITERATIONS = 3
-TILT_MIN_SPREAD = 1.0  # m/s^2: below this the gyro as read is not refused (right logs: 0.07-0.66 as read)
+TILT_MIN_SPREAD = 1.0  # m/s^2: below this the gyro as read is not refused (right logs: at most 0.98 as read)
 TILT_RATIO = 3.0  # ... and another reading must spread this many times less
 
 GYRO_READINGS = {  # what a gyro read as rad/s may really be -> (factor to rad/s, the fix)
@@ -71,16 +74,18 @@ def _stretch_starts(t: np.ndarray, length: int) -> np.ndarray:
     return starts
 
 
-def gravity_spread(t: np.ndarray, gyro: np.ndarray, acc: np.ndarray) -> TiltFit | None:
-    """The module docstring's statistic for ``gyro`` (N, 3) rad/s and ``acc`` (N, 3) m/s^2 at times ``t`` (s);
-    None with fewer than ``TILT_MIN_STRETCHES`` stretches."""
+def gravity_spread(
+    t: np.ndarray, gyro: np.ndarray, acc: np.ndarray, stretch_s: float = TILT_STRETCH_S, window_s: float = TILT_WINDOW_S
+) -> TiltFit | None:
+    """The module docstring's statistic for ``gyro`` (N, 3) rad/s and ``acc`` (N, 3) m/s^2 at times ``t`` (s), over
+    stretches of ``stretch_s`` and windows of ``window_s``; None with fewer than ``TILT_MIN_STRETCHES`` stretches."""
     import torch
 
     from learned_imu.geometry.preintegration import preintegrate
 
     dt = float(np.median(np.diff(t)))
-    per_window = max(int(round(TILT_WINDOW_S / dt)), 1)
-    length = per_window * int(round(TILT_STRETCH_S / TILT_WINDOW_S))
+    per_window = max(int(round(window_s / dt)), 1)
+    length = per_window * int(round(stretch_s / window_s))
     starts = _stretch_starts(t, length)
     if len(starts) < TILT_MIN_STRETCHES:
         return None
@@ -94,7 +99,7 @@ def gravity_spread(t: np.ndarray, gyro: np.ndarray, acc: np.ndarray) -> TiltFit 
         vel = np.concatenate([np.zeros((len(starts), 1, 3)), pre.vel.numpy()], axis=1)
         jac = pre.bias_jacobian.numpy()[..., 6:9, 3:6]  # d velocity / d gyro bias (bias subtracted)
         jac = np.concatenate([np.zeros((len(starts), 1, 3, 3)), jac], axis=1)
-        means, mean_jac = np.diff(vel, axis=1) / TILT_WINDOW_S, np.diff(jac, axis=1) / TILT_WINDOW_S
+        means, mean_jac = np.diff(vel, axis=1) / window_s, np.diff(jac, axis=1) / window_s
         deviation = means - means.mean(axis=1, keepdims=True)
         if iteration == TILT_BIAS_ITERATIONS:
             break
@@ -108,10 +113,14 @@ def check_gyro_tilt(t: np.ndarray, gyro: np.ndarray, acc: np.ndarray, source: ob
     """Refuse a gyro that is not in rad/s by the module docstring's rule, naming ``source``, the gyro, every reading
     that fits ``TILT_RATIO`` times better than as read, best first, and its fix. Silent where the log is too short
     or nothing is decided."""
-    as_read = gravity_spread(t, gyro, acc)
+    lengths = (TILT_STRETCH_S, TILT_WINDOW_S)
+    as_read = gravity_spread(t, gyro, acc, *lengths)
+    if as_read is None:  # a short log: half the lengths
+        lengths = TILT_SHORT
+        as_read = gravity_spread(t, gyro, acc, *lengths)
     if as_read is None or as_read.spread < TILT_MIN_SPREAD:
         return
-    spreads = {unit: gravity_spread(t, gyro * factor, acc).spread for unit, (factor, _) in GYRO_READINGS.items()}
+    spreads = {u: gravity_spread(t, gyro * factor, acc, *lengths).spread for u, (factor, _) in GYRO_READINGS.items()}
     best = min(spreads.values())
     if best * TILT_RATIO > as_read.spread:
         return
@@ -123,8 +132,8 @@ def check_gyro_tilt(t: np.ndarray, gyro: np.ndarray, acc: np.ndarray, source: ob
     raise DataError(
         source,
         "gyro",
-        f"the gyro as read does not follow the gravity the accelerometer sees: integrated over {TILT_STRETCH_S:g}-s "
-        f"stretches it scatters the specific force's {TILT_WINDOW_S:g}-s means by {as_read.spread:.3g} m/s^2, "
+        f"the gyro as read does not follow the gravity the accelerometer sees: integrated over {lengths[0]:g}-s "
+        f"stretches it scatters the specific force's {lengths[1]:g}-s means by {as_read.spread:.3g} m/s^2, "
         f"as {alike[0]} by {best:.3g} (a platform's own accelerations: about 1 or less): gyro in "
         f"{' or '.join(alike)}? {fixes[0].upper()}{fixes[1:]}",
     )

@@ -39,7 +39,7 @@ from fusion.config import FuseConfig
 from fusion.graph import Solution, Trajectory
 from fusion.solve import solve_export
 from fusion.still import StillStart, still_start
-from learned_imu.datasets._tilt import GYRO_READINGS, check_gyro_tilt
+from learned_imu.datasets._tilt import GYRO_READINGS, check_gyro_tilt, reading_fixes
 from learned_imu.datasets.gps import gps_file_layout, read_gps_csv
 from learned_imu.export import (
     check_keyframe_interval,
@@ -537,13 +537,12 @@ def check_imu_units(sequence: ImuSequence, fixes: GpsFixes, where: object) -> No
     if best * UNIT_REFUSAL_RATIO >= as_read:
         return
     alike = [unit for unit, misfit in sorted(misfits.items(), key=lambda item: item[1]) if misfit < 1.5 * best]
-    fixes_text = "; or ".join(GYRO_READINGS[unit][1] for unit in alike)
     raise DataError(
         where,
         "gyro",
         f"the IMU explains the GPS track far worse with the gyro as read ({as_read:.3g} m/s of its velocity "
         f"changes unexplained) than as {' or '.join(alike)} ({best:.3g} m/s): gyro {' or '.join(alike)}? "
-        f"{fixes_text[0].upper()}{fixes_text[1:]}",
+        + reading_fixes(alike),
     )
 
 
@@ -571,9 +570,7 @@ def _check_gyro_turns(sequence: ImuSequence, fixes: GpsFixes, where: object) -> 
         )
     unit = min(GYRO_READINGS, key=lambda u: abs(np.log(found.scale / GYRO_READINGS[u][0])))
     if abs(np.log(found.scale / GYRO_READINGS[unit][0])) < np.log(1.5):
-        raise DataError(
-            where, "gyro", said + f"gyro {unit}? {GYRO_READINGS[unit][1][0].upper()}{GYRO_READINGS[unit][1][1:]}"
-        )
+        raise DataError(where, "gyro", said + f"gyro {unit}? {reading_fixes([unit])}")
     raise DataError(where, "gyro", said + "the gyro is off by that factor; it is read as rad/s")
 
 

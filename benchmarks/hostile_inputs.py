@@ -122,8 +122,14 @@ def cases(sequence, folder: Path):
         wrong = dataclasses.replace(blind, gyro=blind.gyro * scale)
         out.append(("gyro unit (GPS track)", label, lambda w=wrong: check_imu_units(w, fixes, "imu.csv"), cause))
         if scale > 0:  # without GPS: the gyro's rotations against gravity (what a reader or fuse() runs then)
-            tilt = lambda w=wrong: check_gyro_tilt(w.t, w.gyro, w.acc, "imu.csv")  # noqa: E731
-            out.append(("gyro unit (gravity, no GPS)", label, tilt, cause))
+            out.append(
+                (
+                    "gyro unit (gravity, no GPS)",
+                    label,
+                    lambda w=wrong: check_gyro_tilt(w.t, w.gyro, w.acc, "imu.csv"),
+                    cause,
+                )
+            )
     return out
 
 

@@ -46,6 +46,12 @@ GYRO_READINGS = {  # what a gyro read as rad/s may really be -> (factor to rad/s
 }
 
 
+def reading_fixes(units: list[str]) -> str:
+    """The fixes of the ``GYRO_READINGS`` named ``units``, joined as one sentence for a message."""
+    text = "; or ".join(GYRO_READINGS[unit][1] for unit in units)
+    return text[0].upper() + text[1:]
+
+
 @dataclass(frozen=True)
 class TiltFit:
     """``gravity_spread``'s answer: the median over stretches of the windows' RMS spread (m/s^2), the fitted gyro
@@ -90,8 +96,8 @@ def gravity_spread(
     if len(starts) < TILT_MIN_STRETCHES:
         return None
     rows = starts[:, None] + np.arange(length)[None, :]
-    samples_gyro, samples_acc = torch.as_tensor(gyro[rows]), torch.as_tensor(acc[rows])
-    steps = torch.as_tensor(np.diff(t[rows], axis=1, append=t[rows][:, -1:] + dt))
+    samples_gyro, samples_acc, times = torch.as_tensor(gyro[rows]), torch.as_tensor(acc[rows]), t[rows]
+    steps = torch.as_tensor(np.diff(times, axis=1, append=times[:, -1:] + dt))
     at = list(range(per_window - 1, length, per_window))
     bias = np.zeros(3)
     for iteration in range(TILT_BIAS_ITERATIONS + 1):
@@ -128,12 +134,11 @@ def check_gyro_tilt(t: np.ndarray, gyro: np.ndarray, acc: np.ndarray, source: ob
     # and "no rotation" explains its thrust-borne specific force best (a deg/s file on EuRoC fits mrad/s better)
     ranked = sorted(spreads.items(), key=lambda item: item[1])
     alike = [unit for unit, spread in ranked if spread * TILT_RATIO <= as_read.spread]
-    fixes = "; or ".join(GYRO_READINGS[unit][1] for unit in alike)
     raise DataError(
         source,
         "gyro",
         f"the gyro as read does not follow the gravity the accelerometer sees: integrated over {lengths[0]:g}-s "
         f"stretches it scatters the specific force's {lengths[1]:g}-s means by {as_read.spread:.3g} m/s^2, "
         f"as {alike[0]} by {best:.3g} (a platform's own accelerations: about 1 or less): gyro in "
-        f"{' or '.join(alike)}? {fixes[0].upper()}{fixes[1:]}",
+        f"{' or '.join(alike)}? {reading_fixes(alike)}",
     )

@@ -39,7 +39,7 @@ from fusion.config import FuseConfig
 from fusion.graph import Solution, Trajectory
 from fusion.solve import solve_export
 from fusion.still import StillStart, still_start
-from learned_imu.datasets._tilt import GYRO_READINGS, check_gyro_tilt, reading_fixes
+from learned_imu.datasets._tilt import GYRO_READINGS, check_gyro_unit, reading_fixes
 from learned_imu.datasets.gps import gps_file_layout, read_gps_csv
 from learned_imu.export import (
     check_keyframe_interval,
@@ -233,7 +233,7 @@ def fuse(
         if motion_model is None:
             log.warning("%s: no GPS and no motion model: the result is integrated IMU, which drifts fast", where)
         if sequence.gt is None:  # nothing else checks the gyro's unit here (the readers do, for files)
-            check_gyro_tilt(sequence.t, sequence.gyro, sequence.acc, where)
+            check_gyro_unit(sequence.t, sequence.gyro, sequence.acc, where)
     else:
         sequence = dataclasses.replace(sequence, gps=fixes)
         sequence = fixes_on_samples(sequence)  # a keyframe at every fix: only fixes on an IMU sample

@@ -10,8 +10,9 @@ GPS: the drive's ground truth at 1 Hz with 0.5 m noise (as a user's CSV would ca
 ``check_gps_times``, ``check_gps_clock``, ``read_gps_csv``'s sigma check); models: ``check_model_against_raw`` with an
 untrained AirIMU network whose gyro output is offset; the gyro's unit and sign: ``check_imu_units`` (the track's
 turns against the gyro's, and the track explained by the gyro as read and in other units; no ground truth); and
-without GPS ``check_gyro_tilt`` (the gyro's rotations against the gravity the accelerometer sees, as the readers
-and ``fuse()`` run it on a log without ground truth; ``benchmarks/gyro_tilt.py`` runs it on every shared log).
+without GPS ``check_gyro_unit`` (the gyro's rotations against the gravity the accelerometer sees, and a car's turns
+against its centripetal force, as the readers and ``fuse()`` run it on a log without ground truth;
+``benchmarks/gyro_tilt.py`` runs it on every shared log).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from airimu.fuse import check_gps_clock, check_gps_times, check_gps_units, check
 from airimu_core.errors import AirImuError
 from airimu_core.sequence import GpsFixes
 from learned_imu.datasets._assemble import ReadChecks
-from learned_imu.datasets._tilt import check_gyro_tilt
+from learned_imu.datasets._tilt import check_gyro_unit
 from learned_imu.datasets.gps import read_gps_csv
 from learned_imu.datasets.kitti_raw import read_kitti_raw
 
@@ -124,9 +125,9 @@ def cases(sequence, folder: Path):
         if scale > 0:  # without GPS: the gyro's rotations against gravity (what a reader or fuse() runs then)
             out.append(
                 (
-                    "gyro unit (gravity, no GPS)",
+                    "gyro unit (gravity and turns, no GPS)",
                     label,
-                    lambda w=wrong: check_gyro_tilt(w.t, w.gyro, w.acc, "imu.csv"),
+                    lambda w=wrong: check_gyro_unit(w.t, w.gyro, w.acc, "imu.csv"),
                     cause,
                 )
             )

@@ -59,6 +59,7 @@ X, V, B = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V, gtsam.symbol_short
 RATE_CHECK_SAMPLES = 20  # samples seen before the stream's rate is compared with the model's training rate
 CONVERGE_ROUNDS = 20  # flush's re-linearisation rounds at most (bias states with ISAM2)
 NOISE_CHECK_SAMPLES = 400  # raw samples seen before given densities are compared with the stream's white noise
+UNIT_CHECK_S = 120.0  # the gyro's unit checked once against gravity and a car's turns, this long into the stream
 
 
 @dataclass(eq=False)
@@ -197,6 +198,7 @@ class OnlineFusion:
         self._flushed = False
         self._rate_checked = False
         self._noise_sample = (np.zeros(0), np.zeros((0, 6))) if model is None and given else None  # _check_noise
+        self._unit_sample: list[tuple[np.ndarray, np.ndarray]] | None = []  # _check_units (None: done)
         self.unused_fixes: tuple[float, ...] = ()  # times of the fixes flush() could not use
         self._grid_t = 0.0  # the time of the keyframe grid's latest point (fixes' keyframes do not move it)
         self._late_warned = False  # a fix applied away from its own time (it came after its sample left the buffer)
@@ -646,7 +648,26 @@ class OnlineFusion:
                 check_times_rate(model, np.concatenate([seen, t]), "add_imu")
         if self._model is None and self._noise_sample is not None and self._first is not None:
             self._check_noise(t, raw)  # (before an alignment the samples are checked as they are replayed)
+        if self._unit_sample is not None:
+            self._check_units(t, raw)
         return t, raw
+
+    def _check_units(self, t: np.ndarray, raw: np.ndarray) -> None:
+        """Once the stream spans ``UNIT_CHECK_S``: the gyro's unit from gravity and a car's turns
+        (``learned_imu.datasets._tilt.check_gyro_unit``, what the readers run on a log without ground truth), a
+        warning naming the likely unit and its fix: a stream cannot be re-read, so it goes on as given."""
+        self._unit_sample.append((t, raw))
+        if t[-1] - self._unit_sample[0][0][0] < UNIT_CHECK_S:
+            return
+        from learned_imu.datasets._tilt import check_gyro_unit
+
+        seen_t = np.concatenate([block[0] for block in self._unit_sample])
+        seen = np.concatenate([block[1] for block in self._unit_sample])
+        self._unit_sample = None
+        try:
+            check_gyro_unit(seen_t, seen[:, :3], seen[:, 3:], "OnlineFusion.add_imu")
+        except AirImuError as error:
+            log.warning("%s (the first %g s of the stream; it goes on as given)", error, UNIT_CHECK_S)
 
     def _check_noise(self, t: np.ndarray, raw: np.ndarray) -> None:
         """Once ``NOISE_CHECK_SAMPLES`` raw samples are in: the given densities against the samples' own white noise

@@ -31,7 +31,7 @@ from airimu_core.errors import DataError, InputError
 from airimu_core.rotations import UNIT_NORM_TOL, quat_to_matrix, slerp
 from airimu_core.sequence import GpsFixes, GroundTruth, ImuSequence
 from learned_imu.datasets import _checks
-from learned_imu.datasets._tilt import check_gyro_tilt
+from learned_imu.datasets._tilt import check_gyro_unit
 
 VEL_WINDOW_S = 0.05  # s; 11 samples at 200 Hz, chosen on EuRoC V1_02 (3.2 mm/s rms vs the file velocity)
 VEL_POLYORDER = 3
@@ -280,8 +280,8 @@ def build_sequence(
         if gt is not None
         else None
     )
-    if truth is None and checks.check_units:  # the gyro's unit from gravity (with ground truth: the frame check)
-        check_gyro_tilt(t, gyro, acc, source)
+    if truth is None and checks.check_units:  # the gyro unit from gravity, turns (with truth: the frame check)
+        check_gyro_unit(t, gyro, acc, source)
     if truth is not None and checks.check_frame:
         _checks.check_frame(
             t,

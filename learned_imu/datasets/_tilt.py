@@ -19,6 +19,16 @@ file converted as if deg/s) shows only on a platform that tilts (BROAD's rotatio
 A log with fewer than ``TILT_MIN_STRETCHES`` stretches without a gap is checked over ``TILT_SHORT`` instead; a
 shorter one is not checked. Measured on every shared recording (2026-12-07, ``benchmarks/gyro_tilt.py``):
 BENCHMARKS.md "Hostile inputs".
+
+A gyro read too small on a car is what the turns show instead (``turn_speeds``, ``check_gyro_turns``): a platform
+that travels along one axis of its body (a car, a wheeled robot) feels the centripetal force ``omega x v`` in a turn,
+so over a window of ``TURN_WINDOW_S`` its horizontal specific force follows its yaw rate (the gyro about the up the
+accelerometer sees) along one direction, and the slope, force over rate, is its speed. Where that fit holds
+(R^2 >= ``TURN_MIN_R2``, the fitted force varying by at least ``TURN_MIN_FORCE``) on ``TURN_MIN_WINDOWS`` windows or
+more, a median speed over ``TURN_MAX_SPEED`` is refused: no ground vehicle turns that fast, and a rad/s gyro
+converted as if deg/s puts a car's 5-15 m/s at 300-900 m/s. The statistic needs no unit of the gyro (R^2 and the
+force do not change with its scale), and a drone or a hand-held log, whose force does not follow its yaw, has few
+such windows, at walking or flying speeds (measured: BENCHMARKS.md "Hostile inputs").
 """
 
 from __future__ import annotations
@@ -38,6 +48,11 @@ TILT_MAX_STRETCHES = 24  # at most this many, evenly spread (the cost of a long 
 TILT_BIAS_ITERATIONS = 3
 TILT_MIN_SPREAD = 1.0  # m/s^2: below this the gyro as read is not refused (right logs: at most 0.98 as read)
 TILT_RATIO = 3.0  # ... and another reading must spread this many times less
+TURN_WINDOW_S = 5.0  # a turn's centripetal force against its yaw rate over this long (half-overlapping windows)
+TURN_MIN_R2 = 0.8  # the force must follow the yaw rate this closely along one direction ...
+TURN_MIN_FORCE = 0.5  # m/s^2: ... and vary by this much (std of the fit): a turn, not vibration
+TURN_MIN_WINDOWS = 5  # fewer such windows: nothing decided (one odd window on a city drive reaches 190 m/s)
+TURN_MAX_SPEED = 120.0  # m/s: faster than any train or race car through a turn (right logs: median 5-15 as read)
 
 GYRO_READINGS = {  # what a gyro read as rad/s may really be -> (factor to rad/s, the fix)
     "deg/s": (np.pi / 180.0, "read it with gyro_unit='deg/s' (airimu: --reader-option gyro_unit=deg/s)"),
@@ -142,3 +157,66 @@ def check_gyro_tilt(t: np.ndarray, gyro: np.ndarray, acc: np.ndarray, source: ob
         f"as {alike[0]} by {best:.3g} (a platform's own accelerations: about 1 or less): gyro in "
         f"{' or '.join(alike)}? {reading_fixes(alike)}",
     )
+
+
+def turn_speeds(t: np.ndarray, gyro: np.ndarray, acc: np.ndarray) -> np.ndarray:
+    """The speeds (m/s) the module docstring's turn fit implies, one per window of ``TURN_WINDOW_S`` (half
+    overlapping, none across a gap) where it holds; ``gyro`` (N, 3) as read (rad/s expected), ``acc`` (N, 3) m/s^2."""
+    dt = float(np.median(np.diff(t)))
+    length = max(int(round(TURN_WINDOW_S / dt)), 8)
+    starts = np.arange(0, len(t) - length + 1, length // 2)
+    gaps = gap_indices(t)
+    if gaps.size:
+        first_gap = np.searchsorted(gaps, starts)  # the first gap at or after each start
+        after = np.append(gaps, len(t))[first_gap]
+        starts = starts[after >= starts + length - 1]
+    if not starts.size:
+        return np.zeros(0)
+    rows = starts[:, None] + np.arange(length)[None, :]
+    force, rate = acc[rows], gyro[rows]  # (W, L, 3)
+    up = force.mean(axis=1)
+    up /= np.linalg.norm(up, axis=-1, keepdims=True)
+    yaw = np.einsum("wlk,wk->wl", rate, up)
+    yaw -= yaw.mean(axis=1, keepdims=True)
+    horizontal = force - np.einsum("wl,wk->wlk", np.einsum("wlk,wk->wl", force, up), up)
+    horizontal -= horizontal.mean(axis=1, keepdims=True)
+    power = np.maximum((yaw**2).sum(axis=1), 1e-300)
+    slope = np.einsum("wl,wlk->wk", yaw, horizontal) / power[:, None]  # force per unit yaw rate, a vector
+    speed = np.linalg.norm(slope, axis=-1)
+    along = np.einsum("wlk,wk->wl", horizontal, slope / np.maximum(speed, 1e-300)[:, None])
+    fitted = yaw * speed[:, None]
+    r2 = 1.0 - ((along - fitted) ** 2).sum(axis=1) / np.maximum((along**2).sum(axis=1), 1e-300)
+    held = (r2 >= TURN_MIN_R2) & (fitted.std(axis=1) >= TURN_MIN_FORCE)
+    return speed[held]
+
+
+def check_gyro_turns(t: np.ndarray, gyro: np.ndarray, acc: np.ndarray, source: object) -> None:
+    """Refuse a gyro that turns too little for the centripetal force the accelerometer feels in a car's turns
+    (module docstring), naming ``source``, the gyro, the speed it implies and every reading that brings it under
+    ``TURN_MAX_SPEED``. Silent where fewer than ``TURN_MIN_WINDOWS`` windows are turns of that kind."""
+    speeds = turn_speeds(t, gyro, acc)
+    if len(speeds) < TURN_MIN_WINDOWS:
+        return
+    speed = float(np.median(speeds))
+    if speed <= TURN_MAX_SPEED:
+        return
+    fits = [unit for unit, (factor, _) in GYRO_READINGS.items() if 1.0 <= speed / factor <= TURN_MAX_SPEED]
+    named = (
+        f"gyro in {' or '.join(fits)}? {reading_fixes(fits)}"
+        if fits
+        else "the gyro reads too small by a factor none of the usual units explains"
+    )
+    raise DataError(
+        source,
+        "gyro",
+        f"the gyro as read turns too little for the centripetal force the accelerometer feels: in {len(speeds)} "
+        f"{TURN_WINDOW_S:g}-s windows where the horizontal specific force follows the yaw rate, force over rate "
+        f"puts the speed at {speed:.3g} m/s (median; a ground vehicle turns at under {TURN_MAX_SPEED:g}); {named}",
+    )
+
+
+def check_gyro_unit(t: np.ndarray, gyro: np.ndarray, acc: np.ndarray, source: object) -> None:
+    """Both checks of a gyro's unit without ground truth or GPS: ``check_gyro_tilt`` (a gyro too large, any
+    platform; too small on one that tilts) and ``check_gyro_turns`` (too small on a car)."""
+    check_gyro_tilt(t, gyro, acc, source)
+    check_gyro_turns(t, gyro, acc, source)

@@ -278,3 +278,25 @@ def test_a_fix_gets_its_own_keyframe_unless_it_comes_after_one_past_it(sequence,
         assert fusion.add_gps(seq.t[160], seq.gt.pos[160], 0.1) is True  # after the keyframe at 200 (1.0 s)
     assert list(fusion.trajectory().t) == [seq.t[0], seq.t[100], seq.t[130], seq.t[200]]
     assert "applied there, 0.15 s from its own time" in caplog.text
+
+
+def test_a_car_stream_with_its_gyro_shrunk_is_warned_about(shared_data, caplog):
+    """Two minutes into a stream the gyro's unit is checked as the readers check a log without ground truth (KITTI
+    2011_10_03_drive_0027's first 121 s: 13 turns): a rad/s gyro converted as if deg/s is named; read right, no word."""
+    from learned_imu.datasets import read_sequence
+
+    kitti = {"on_backward": "drop", "on_duplicate": "drop", "on_gap": "keep"}
+    drive = read_sequence("kitti_raw", shared_data / "kitti_raw/2011_10_03_drive_0027.csv", **kitti)
+    end = int(np.searchsorted(drive.t, drive.t[0] + 121.0))
+    settings = FuseConfig(online=OnlineSettings(keyframe_s=5.0))  # few keyframes: the check is what is tested
+    for factor, warned in ((1.0, False), (np.pi / 180.0, True)):
+        fusion = OnlineFusion(None, drive.gravity, first_state(drive), settings)
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="fusion.online"):
+            for start in range(0, end, 100):
+                block = slice(start, min(start + 100, end))
+                fusion.add_imu(drive.t[block], drive.gyro[block] * factor, drive.acc[block])
+        said = [r.getMessage() for r in caplog.records if "gyro" in r.getMessage()]
+        assert bool(said) == warned, said
+        if warned:
+            assert "converted as if deg/s" in said[0] and "OnlineFusion.add_imu" in said[0]

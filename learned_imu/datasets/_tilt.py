@@ -26,7 +26,7 @@ so over a window of ``TURN_WINDOW_S`` its horizontal specific force follows its 
 accelerometer sees) along one direction, and the slope, force over rate, is its speed. Where that fit holds
 (R^2 >= ``TURN_MIN_R2``, the fitted force varying by at least ``TURN_MIN_FORCE``) on ``TURN_MIN_WINDOWS`` windows or
 more, a median speed over ``TURN_MAX_SPEED`` is refused: no ground vehicle turns that fast, and a rad/s gyro
-converted as if deg/s puts a car's 5-15 m/s at 300-900 m/s. The statistic needs no unit of the gyro (R^2 and the
+converted as if deg/s puts a car's 5-15 m/s at 290-830 m/s (KITTI). The statistic needs no unit of the gyro (R^2 and the
 force do not change with its scale), and a drone or a hand-held log, whose force does not follow its yaw, has few
 such windows, at walking or flying speeds (measured: BENCHMARKS.md "Hostile inputs").
 """

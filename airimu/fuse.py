@@ -516,7 +516,7 @@ def check_imu_units(sequence: ImuSequence, fixes: GpsFixes, where: object) -> No
     named together."""
     from fusion.gps_units import track_misfit
 
-    _check_gyro_turns(sequence, fixes, where)
+    _check_gyro_heading(sequence, fixes, where)
     inside = fixes.t[(fixes.t >= sequence.t[0]) & (fixes.t <= sequence.t[-1])]
     if len(inside) < 3 or float(np.median(np.diff(inside))) > GYRO_CHECK_MAX_SPACING_S:
         return
@@ -546,7 +546,7 @@ def check_imu_units(sequence: ImuSequence, fixes: GpsFixes, where: object) -> No
     )
 
 
-def _check_gyro_turns(sequence: ImuSequence, fixes: GpsFixes, where: object) -> None:
+def _check_gyro_heading(sequence: ImuSequence, fixes: GpsFixes, where: object) -> None:
     """The car's test of ``check_imu_units``: the track's turns against the gyro's (``fusion.gps_units.heading_scale``;
     a vehicle that heads where it goes), refused where that regression decides and its slope is negative (the
     gyro's sign flipped) or ``UNIT_REFUSAL_RATIO`` or more from 1, naming the closest of ``GYRO_READINGS``. Finds a

@@ -129,6 +129,9 @@ class MotionConfig:
     decoder_hidden: int = 64
     dropout: float = 0.1
     init_var: float = 0.1  # (m/s)^2, the untrained model's velocity variance
+    # m/s per unit of the velocity decoder's output: about the platform's typical speed. A car's 10-30 m/s read at
+    # 1 m/s per unit drove the GRUs into saturation in the first epoch (KITTI: a constant output; BENCHMARKS.md)
+    vel_scale_m_s: float = 1.0
     chunk: int = 1800  # samples supervised per chunk
     context: int = 180  # samples before them that warm the GRUs up, unsupervised
     chunk_stride: int = 450  # distance between training chunk starts
@@ -163,6 +166,7 @@ class MotionConfig:
         _check(self, "motion.stride", lambda v: v <= self.kernel_size, "at most motion.kernel_size")
         _check(self, "motion.dropout", lambda v: 0.0 <= v < 1.0, "in [0, 1)")
         _check(self, "motion.init_var", _positive, "a positive variance, (m/s)^2")
+        _check(self, "motion.vel_scale_m_s", _positive, "a positive speed, m/s")
         for key in ("chunk", "chunk_stride", "val_chunk_stride"):
             _check(
                 self,

@@ -323,5 +323,6 @@ def build_motion_model(config: MotionConfig) -> MotionNet:
         gru_sizes=config.gru_sizes,
         decoder_hidden=config.decoder_hidden,
         dropout=config.dropout,
+        vel_scale_m_s=config.vel_scale_m_s,
         init_var=config.init_var,
     )

@@ -50,6 +50,7 @@ from learned_imu.network.checkpoint import (
     build_model,
     build_motion_model,
     load_checkpoint,
+    motion_from_checkpoint,
     save_checkpoint,
 )
 from learned_imu.network.inference import correct
@@ -57,7 +58,13 @@ from learned_imu.network.model import AirImuNet
 from learned_imu.training.chunks import concat_chunks, make_chunks
 from learned_imu.training.distributed import World, agree, barrier, check_batch_size, is_writer
 from learned_imu.training.losses import LossWeights
-from learned_imu.training.motion import MotionChunks, concat_motion_chunks, make_motion_chunks
+from learned_imu.training.motion import (
+    MotionChunks,
+    collapse_warning,
+    concat_motion_chunks,
+    make_motion_chunks,
+    output_spread,
+)
 from learned_imu.training.train import (
     EpochLog,
     Trainer,
@@ -316,6 +323,11 @@ def _train_run(config: ExperimentConfig, folder: Path, progress: bool, world: Wo
         log.info("%s epoch %d: %s", config.name, entry.epoch, json.dumps(entry.to_dict()))
     if writer and use_cov and not motion:  # the motion model's variance is trained with it (its NLL term)
         _finish_calibration(folder, config, best, trained_on, trainer)
+    if writer and motion:  # a model that gives one velocity whatever it reads trains and validates quietly
+        net, _ = motion_from_checkpoint(folder / "best.pt")
+        message = collapse_warning(output_spread(net, val_data, t.batch_size), str(folder / "best.pt"))
+        if message is not None:
+            log.warning("%s", message)
     barrier(world)  # every rank returns once the folder is complete
     return RunSummary(folder, trainer.epochs_done, best.epoch, best.val_loss, best.seconds)
 

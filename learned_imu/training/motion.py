@@ -167,6 +167,38 @@ class MotionChunks:
         )
 
 
+# below this, on every axis, the std of a model's velocities over the validation chunks against the truth's is a
+# model whose output hardly depends on its input (KITTI's car model at 1 m/s per output unit: 0.0007-0.1)
+COLLAPSED_SPREAD = 0.2
+
+
+@torch.no_grad()
+def output_spread(model, chunks: MotionChunks, batch_size: int = 64) -> np.ndarray:
+    """(3,) per body axis: the std of the model's velocities over the valid targets of ``chunks`` (eval mode, the
+    unperturbed attitude) divided by the std of the targets; about 1 for a model that follows the motion, near 0
+    for one that gives the same velocity whatever it reads."""
+    model.eval()
+    predicted, target = [], []
+    for first in range(0, len(chunks), batch_size):
+        batch = chunks.select(torch.arange(first, min(first + batch_size, len(chunks))))
+        out, truth, _ = batch._predict(model, perturb=False)
+        predicted.append(out.vel[batch.valid])
+        target.append(truth[batch.valid])
+    predicted, target = torch.cat(predicted), torch.cat(target)
+    return (predicted.std(0) / target.std(0).clamp(min=1e-9)).double().cpu().numpy()
+
+
+def collapse_warning(spread: np.ndarray, where: str) -> str | None:
+    """A message when every axis of ``output_spread`` is below ``COLLAPSED_SPREAD``, else None."""
+    if np.all(spread < COLLAPSED_SPREAD):
+        return (
+            f"{where}: the motion model's velocities hardly vary: their std over the validation chunks is "
+            f"{' / '.join(f'{x:.3g}' for x in spread)} of the truth's (x / y / z); its GRUs are likely saturated "
+            "(motion.vel_scale_m_s well below the platform's speeds?)"
+        )
+    return None
+
+
 def make_motion_chunks(
     sequence: ImuSequence,
     length: int,

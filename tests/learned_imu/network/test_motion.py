@@ -14,10 +14,16 @@ from airimu.cli import app
 from airimu_core.errors import ConfigError, DataError, InputError
 from learned_imu.config import MotionConfig
 from learned_imu.datasets.simulator import simulate
-from learned_imu.network.checkpoint import model_from_checkpoint, motion_from_checkpoint
+from learned_imu.network.checkpoint import build_motion_model, model_from_checkpoint, motion_from_checkpoint
 from learned_imu.network.motion import Motion, MotionNet, block_ends, motion_sequence, up_in_body
 from learned_imu.training.losses import LossWeights
-from learned_imu.training.motion import _tilted, concat_motion_chunks, make_motion_chunks
+from learned_imu.training.motion import (
+    _tilted,
+    collapse_warning,
+    concat_motion_chunks,
+    make_motion_chunks,
+    output_spread,
+)
 from learned_imu.training.train import Trainer
 
 
@@ -105,7 +111,27 @@ def test_training_learns_the_velocity():
     assert after < 0.7 * before, (before, after)  # measured 1.43 -> 0.81 (m/s)^2
 
 
+def test_output_spread_tells_a_constant_model_from_one_that_follows_the_motion():
+    """A model whose velocity does not depend on its input (the untrained one: zero) has spread 0 and is named; one
+    that gives the truth has spread 1 and is not."""
+    chunks = make_motion_chunks(simulate("drone", duration_s=30.0, seed=4), 450, 450, 90, 9)
+    spread = output_spread(MotionNet(gru_sizes=(16,)), chunks)
+    assert np.all(spread < 1e-6)
+    assert "hardly vary" in collapse_warning(spread, "run/best.pt") and "vel_scale_m_s" in collapse_warning(spread, "x")
+
+    class Truth(torch.nn.Module):  # the targets, after the context's outputs
+        def forward(self, gyro, acc, up):
+            vel = torch.cat([torch.zeros(len(chunks), chunks.context_blocks, 3), chunks.target], dim=1)
+            return Motion(vel, torch.ones_like(vel))
+
+    assert output_spread(Truth(), chunks, batch_size=len(chunks)) == pytest.approx(np.ones(3))
+    assert collapse_warning(np.array([0.05, 0.1, 0.3]), "x") is None
+
+
 def test_motion_config_is_checked():
+    assert float(build_motion_model(MotionConfig(vel_scale_m_s=10.0)).vel_scale) == 10.0
+    with pytest.raises(ConfigError, match="motion.vel_scale_m_s"):
+        MotionConfig(vel_scale_m_s=0.0)
     with pytest.raises(ConfigError, match="motion.chunk"):
         MotionConfig(chunk=1000)
     with pytest.raises(ConfigError, match="motion.tilt_noise_deg"):

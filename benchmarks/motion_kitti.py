@@ -28,6 +28,10 @@ IMU with its fixed noise, and that + the motion factor; with ``--correction N CH
 ``configs/kitti_fold*.yaml``) also its corrected samples with their learned covariance (``airimu``), and that + the
 motion factor (``airimu_motion``), in these tables and ``--gtsam-drive``'s (fold 1's model); an outage row where
 ``airimu fuse`` refuses the model (its samples explain the GPS track far worse than the raw ones) says "refused".
+
+``--velocity``: instead of the graphs, the motion model itself on each sequence, fed the ground-truth attitude: per
+body axis (forward, left, up) its velocity RMSE and mean error (m/s), its median predicted sigma, its NEES (the mean
+of error^2 / predicted variance: about 1 when the variances fit) and the correlation of its velocity with the truth's.
 """
 
 from __future__ import annotations
@@ -182,6 +186,28 @@ def gtsam_drive_rows(
     return rows
 
 
+def velocity_row(seq, net) -> dict:
+    """``--velocity``'s row for one sequence (module docstring): the model at every block end with a valid truth."""
+    import torch
+
+    from learned_imu.network.motion import block_ends, motion_sequence, up_in_body
+
+    ends = block_ends(len(seq), net.block).numpy()
+    valid = seq.gt.valid[ends]
+    truth = np.einsum("nji,nj->ni", seq.gt.rot[ends], seq.gt.vel[ends])[valid]
+    raw = [torch.as_tensor(x, dtype=torch.float32) for x in (seq.gyro, seq.acc)]
+    out = motion_sequence(net, *raw, up_in_body(torch.as_tensor(seq.gt.rot, dtype=torch.float32)))
+    vel, var = out.vel.double().numpy()[valid], out.vel_var.double().numpy()[valid]
+    err = vel - truth
+    return {
+        "rmse_m_s": np.sqrt(np.mean(err**2, axis=0)).round(3).tolist(),
+        "mean_error_m_s": err.mean(axis=0).round(3).tolist(),
+        "median_sigma_m_s": np.sqrt(np.median(var, axis=0)).round(3).tolist(),
+        "nees": np.mean(err**2 / var, axis=0).round(2).tolist(),
+        "correlation": [round(float(np.corrcoef(vel[:, i], truth[:, i])[0, 1]), 2) for i in range(3)],
+    }
+
+
 def ate_between_fixes(seq, result, fused) -> float:
     """ATE (m, unaligned) of a fused result's IMU-rate track against the ground truth between the first and the last
     fused fix."""
@@ -237,6 +263,9 @@ def main() -> None:
         "--validate", action="store_true", help="score the folds' validation drives (whole) instead: for settings"
     )
     parser.add_argument("--fix-every", type=int, default=10, help="--gtsam-drive: one fix in this many (default 10)")
+    parser.add_argument(
+        "--velocity", action="store_true", help="the motion model's velocity error and NEES instead of the graphs"
+    )
     parser.add_argument("--json", help="write the rows here")
     args = parser.parse_args()
     logging.basicConfig(level=logging.ERROR)
@@ -293,6 +322,11 @@ def main() -> None:
             part = dataclasses.replace(part, name=f"seq {name} ({drive})", gps=None)
             start = time.perf_counter()
             row = {"sequence": name, "drive": drive, "fold": fold, "ai_imu_t_rel_percent": ai_imu}
+            if args.velocity:
+                row |= velocity_row(part, net)
+                rows.append(row)
+                print(json.dumps(row), flush=True)
+                continue
             row["imu"] = scores(part, fuse(part, None, None, config, start="ground-truth"))
             row["motion"] = scores(part, fuse(part, None, None, config, motion_model=net, start="ground-truth"))
             if correction is not None:

@@ -35,7 +35,7 @@ from airimu_core.errors import ConfigError, DataError, InputError
 from airimu_core.motion import BodyVelocities
 from airimu_core.sequence import GPS_SIGMA_UNKNOWN_M, GpsFixes, ImuSequence
 from factors.noise import noise_mismatch
-from fusion.config import FuseConfig
+from fusion.config import FuseConfig, MotionSettings
 from fusion.graph import Solution, Trajectory
 from fusion.solve import solve_export
 from fusion.still import StillStart, still_start
@@ -306,8 +306,15 @@ def _solve(sequence, fixes, correction, config, motion_model, initial_state, end
     solution, found = solve_export(export, fixes, config, initial_state, still=still)
     fused = fixes if fixes is not None else GpsFixes.none()
     velocities = None
-    for _ in range(config.motion.passes if motion_model is not None else 0):  # each pass on the last attitude
-        velocities = motion_on(Fused(solution, correction, fused, sequence), motion_model, config.motion.cov_scale)
+
+    def solve_with(motion: BodyVelocities) -> Fused:
+        solved, checks = solve_export(export, fixes, config, initial_state, motion, guess=solution.values, still=still)
+        return Fused(solved, correction, fused, sequence, checks, motion)
+
+    passes = config.motion.passes if motion_model is not None else 0
+    for k in range(passes):  # each pass on the last attitude; the speed envelope checked in the last
+        last = solve_with if k == passes - 1 else None
+        velocities = motion_on(Fused(solution, correction, fused, sequence), motion_model, config.motion, last)
         solution, found = solve_export(
             export, fixes, config, initial_state, velocities, guess=solution.values, still=still
         )
@@ -777,21 +784,45 @@ def _outage_errors(begin: float, duration: float, end, truth, reference: GpsFixe
     }
 
 
-def motion_on(result: Fused, motion_model, cov_scale: float) -> BodyVelocities:
+def motion_on(result: Fused, motion_model, settings: MotionSettings, solve_with=None) -> BodyVelocities:
     """The motion model's velocities over ``result``'s sequence, reading ``result``'s attitude at every sample
-    (``attitude_at_samples``: the estimate, never ground truth), every variance times ``cov_scale``."""
+    (``imu_rate_trajectory``'s, held before the first keyframe and after the last: the estimate, never ground truth),
+    every variance times ``settings.cov_scale``.
+
+    The speed envelope (``settings.speed_envelope``, for a model whose checkpoint records its training speed), with
+    ``solve_with`` (velocities -> ``Fused``: the same graph solved with them): the graph is solved once with every
+    output's along-track axis left to the IMU (``BodyVelocities.along_track_free``: the speed then comes from the IMU
+    and the GPS, not from the model), and wherever that solution is faster than the model's training speeds the
+    along-track axis stays free (logged)."""
     from learned_imu.network.motion import predict_velocities
 
-    rot = attitude_at_samples(result)
-    return predict_velocities(motion_model, result.sequence, rot).scaled(cov_scale)
-
-
-def attitude_at_samples(result: Fused) -> np.ndarray:
-    """(N, 3, 3) world <- IMU at every sample of the sequence: ``imu_rate_trajectory``'s, held before the first
-    keyframe and after the last (what the motion model reads: the estimate, never ground truth)."""
     dense = imu_rate_trajectory(result)
     at = np.clip(np.searchsorted(dense.t, result.sequence.t), 0, len(dense.t) - 1)
-    return dense.rot[at]
+    velocities = predict_velocities(motion_model, result.sequence, dense.rot[at]).scaled(settings.cov_scale)
+    limit = settings.speed_limit_m_s(motion_model)
+    if limit is None or solve_with is None:
+        return velocities
+    checked = solve_with(velocities.along_track_free(body_velocity(result, velocities.t)))
+    velocities, beyond = velocities.outside_envelope(body_velocity(checked, velocities.t), limit)
+    if beyond.any():
+        log.warning(
+            "%s: the estimate is faster than the motion model's training speeds (%.1f m/s) at %d of %d outputs "
+            "(%.0f %%): their along-track velocity is left to the IMU (motion.speed_envelope)",
+            result.sequence.name,
+            limit,
+            int(beyond.sum()),
+            len(beyond),
+            100.0 * beyond.mean(),
+        )
+    return velocities
+
+
+def body_velocity(result: Fused, t: np.ndarray) -> np.ndarray:
+    """(M, 3) the estimated body-frame velocity ``R^T v`` (m/s) at times ``t`` (M,) s: ``imu_rate_trajectory``'s
+    at the sample at or after each time (held outside the keyframes' span)."""
+    dense = imu_rate_trajectory(result)
+    k = np.clip(np.searchsorted(dense.t, t), 0, len(dense.t) - 1)
+    return np.einsum("mji,mj->mi", dense.rot[k], dense.vel[k])
 
 
 def imu_rate_trajectory(result: Fused) -> Trajectory:

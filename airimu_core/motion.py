@@ -55,3 +55,32 @@ class BodyVelocities:
         if factor.shape not in ((), (3,)) or not np.all(np.isfinite(factor) & (factor > 0)):
             raise InputError(f"BodyVelocities.scaled: factor must be one or three positive numbers, got {factor!r}")
         return BodyVelocities(self.t, self.vel, self.var * factor)
+
+    def along_track_free(self, estimate: np.ndarray, where: np.ndarray | None = None) -> BodyVelocities:
+        """The same velocities with the along-track axis left to the IMU (its variance times ``ALONG_TRACK_FREE``)
+        at the outputs ``where`` (M,) bool (default: all). The along-track axis of an output is the body axis the
+        estimator's velocity ``estimate`` (M, 3) m/s is mostly along; the other two (a car's zero lateral and
+        vertical speed) are kept."""
+        estimate = np.asarray(estimate, dtype=float)
+        if estimate.shape != self.vel.shape:
+            raise InputError(
+                f"BodyVelocities.along_track_free: estimate must be {self.vel.shape}, got {estimate.shape}"
+            )
+        rows = np.arange(len(self.t)) if where is None else np.flatnonzero(where)
+        var = self.var.copy()
+        var[rows, np.abs(estimate[rows]).argmax(axis=1)] *= ALONG_TRACK_FREE
+        return BodyVelocities(self.t, self.vel, var)
+
+    def outside_envelope(self, estimate: np.ndarray, limit_m_s: float) -> tuple[BodyVelocities, np.ndarray]:
+        """The speed envelope: where the estimator's speed ``|estimate|`` ((M, 3) body frame, m/s) exceeds
+        ``limit_m_s`` (the model's training speeds, ``fusion.config.MotionSettings.speed_envelope``), the model
+        extrapolates its speed along the track (KITTI's highway, BENCHMARKS.md), so that axis is left to the IMU
+        (``along_track_free``). Returns the velocities and (M,) which outputs were beyond the envelope."""
+        if not (np.isfinite(limit_m_s) and limit_m_s > 0):
+            raise InputError(f"BodyVelocities.outside_envelope: limit_m_s must be > 0 m/s, got {limit_m_s!r}")
+        beyond = np.linalg.norm(np.asarray(estimate, dtype=float), axis=-1) > limit_m_s
+        return self.along_track_free(estimate, beyond), beyond
+
+
+# a variance factor that leaves an axis of the motion factor to the IMU (sigma x 1000)
+ALONG_TRACK_FREE = 1.0e6

@@ -2,9 +2,11 @@
 
     python benchmarks/motion_kitti.py --fold 1 runs/kitti-motion-fold1/best.pt --fold 2 runs/kitti-motion-fold2/best.pt
         [--json F] [--outages]
+    python benchmarks/motion_kitti.py --loo runs/kitti-loo    (leave-one-sequence-out models: motion_kitti_loo.py)
 
 Each sequence is AI-IMU's sample range of its raw drive (the issue's table), read from ``../shared/data/kitti_raw``;
-each is scored by the motion model of the fold that never saw it in training (``configs/kitti_motion_fold*.yaml``).
+each is scored by the motion model of the fold that never saw it in training (``configs/kitti_motion_fold*.yaml``),
+or with ``--loo`` by the model trained on every drive but its own (AI-IMU's leave-one-sequence-out).
 Rows, every one from the ground-truth state at the range's first sample, without GPS, never aligned:
 
 - ``imu``: the raw IMU integrated (``airimu fuse --no-gps --start ground-truth``: the graph of IMU factors alone);
@@ -237,7 +239,10 @@ def gtsam_validation_rows(net, fold_config, motion: MotionSettings) -> list[dict
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--fold", nargs=2, action="append", metavar=("N", "CHECKPOINT"), required=True)
+    parser.add_argument("--fold", nargs=2, action="append", default=[], metavar=("N", "CHECKPOINT"))
+    parser.add_argument(
+        "--loo", help="leave-one-sequence-out models instead: DIR/seqS/best.pt scores S (motion_kitti_loo.py)"
+    )
     parser.add_argument(
         "--correction", nargs=2, action="append", default=[], metavar=("N", "CHECKPOINT"),
         help="fold N's AirIMU model (configs/kitti_fold*.yaml): adds its rows",
@@ -257,6 +262,12 @@ def main() -> None:
         default="hold",
         help="FuseConfig.imu_gaps of every row: how a gap of the IMU is integrated",
     )
+    parser.add_argument(
+        "--speed-envelope",
+        type=lambda v: None if v.lower() in ("none", "null") else float(v),
+        default=MotionSettings.speed_envelope,
+        help="motion.speed_envelope: a factor on the model's training speed, or none",
+    )
     parser.add_argument("--outages", action="store_true", help="also the GPS-outage rows")
     parser.add_argument("--gtsam-drive", action="store_true", help="only GTSAM's drive, one fix in ten (fold 1)")
     parser.add_argument(
@@ -268,9 +279,11 @@ def main() -> None:
     )
     parser.add_argument("--json", help="write the rows here")
     args = parser.parse_args()
+    if bool(args.fold) == bool(args.loo):
+        parser.error("give --fold N CHECKPOINT (once or twice) or --loo DIR")
     logging.basicConfig(level=logging.ERROR)
     mount = None if args.mount_sigma is None else tuple(args.mount_sigma)
-    motion = MotionSettings(args.keyframe_s, args.passes, tuple(args.cov_scale), mount)
+    motion = MotionSettings(args.keyframe_s, args.passes, tuple(args.cov_scale), mount, args.speed_envelope)
     config = FuseConfig(
         gyro_noise_density=GTSAM_NOISE[0],
         acc_noise_density=GTSAM_NOISE[1],
@@ -293,14 +306,18 @@ def main() -> None:
             root = Path(fold_config.data.root)
             rows = gtsam_drive_rows(net, root, motion, correction, args.fix_every, args.imu_gaps)
         args.fold = []
-    for fold, checkpoint in args.fold:
+    runs = [(fold, checkpoint, False) for fold, checkpoint in args.fold]
+    if args.loo:  # each sequence by its own model; the drive to score is the one its run held out
+        held = [s for s in sorted(SEQUENCES) if not args.only or s in args.only]
+        runs = [(f"loo {s}", str(Path(args.loo) / f"seq{s}" / "best.pt"), True) for s in held]
+    for fold, checkpoint, loo in runs:
         net, trained = motion_from_checkpoint(checkpoint)
         trained_on = {spec.path for spec in trained.data.train}
         correction = None
         if fold in dict(args.correction):
             correction, corrected_by = model_from_checkpoint(dict(args.correction)[fold])
             trained_on |= {spec.path for spec in corrected_by.data.train}
-        fold_config = load_config(f"configs/kitti_motion_fold{fold}.yaml")
+        fold_config = trained if loo else load_config(f"configs/kitti_motion_fold{fold}.yaml")
         if args.validate:
             for seq in load_sequences(fold_config.data.val, fold_config.data.root):
                 part = dataclasses.replace(seq, gps=None)

@@ -160,12 +160,18 @@ class MotionSettings:
       from the IMU's body frame to the frame the model's velocities are in), with a prior at identity of this sigma
       (rad; one, or three: roll, pitch, yaw): for a model used on an IMU mounted otherwise than in its training.
       On KITTI's drives (one car) it does not help: the model reads the drive's pitch off gravity (BENCHMARKS.md).
+    - ``speed_envelope``: from the second pass on, where the previous solution's speed exceeds this times the
+      model's training speed (``trained_on.speed_m_s`` of its checkpoint: the highest in its training data), the
+      model's along-track velocity is left to the IMU (``BodyVelocities.outside_envelope``): a network does not
+      know speeds it never saw (KITTI's highway, seq 01, at 24 m/s against 20 in training: 7 m/s low). null: never;
+      a model without the record (trained before it was kept) is not checked.
     """
 
     keyframe_s: float | None = 0.2
     passes: int = 2
     cov_scale: float | tuple[float, float, float] = 1.0
     mount_sigma_rad: float | tuple[float, float, float] | None = None
+    speed_envelope: float | None = 1.0
 
     def __post_init__(self):
         if self.keyframe_s is not None and not (math.isfinite(self.keyframe_s) and self.keyframe_s > 0):
@@ -186,6 +192,22 @@ class MotionSettings:
                     f"got {self.mount_sigma_rad!r}"
                 )
             object.__setattr__(self, "mount_sigma_rad", sigma)
+        envelope = self.speed_envelope
+        if envelope is not None and not (
+            isinstance(envelope, (int, float))
+            and not isinstance(envelope, bool)
+            and math.isfinite(envelope)
+            and envelope > 0
+        ):
+            raise ConfigError(f"motion.speed_envelope must be a positive factor or null, got {envelope!r}")
+        if envelope is not None:
+            object.__setattr__(self, "speed_envelope", float(envelope))
+
+    def speed_limit_m_s(self, motion_model) -> float | None:
+        """The speed (m/s) above which ``motion_model``'s along-track velocity is left to the IMU, or None (no
+        envelope set, or a model without its training speed)."""
+        trained = getattr(getattr(motion_model, "trained_on", None), "speed_m_s", None)
+        return None if self.speed_envelope is None or trained is None else self.speed_envelope * trained
 
 
 def _one_or_three(value, allowed: Callable[[float], bool]) -> float | tuple[float, float, float] | None:

@@ -46,6 +46,7 @@ import gtsam
 import numpy as np
 
 from airimu_core.errors import AirImuError, InputError, real_array
+from airimu_core.motion import BodyVelocities
 from airimu_core.sequence import GpsFixes
 from factors import GpsFactor, MotionFactor, gps_noise, learned_pim
 from factors.noise import noise_mismatch
@@ -146,7 +147,9 @@ class OnlineFusion:
                 "--online); set it to null"
             )
         self._model, self._keyframe_s, self._lag_s = model, online.keyframe_s, online.lag_s
-        self._motion, self._motion_scale = motion_model, config.motion.cov_scale
+        self._motion, self._motion_scale = motion_model, np.asarray(config.motion.cov_scale, dtype=float)
+        self._speed_limit = config.motion.speed_limit_m_s(motion_model) if motion_model is not None else None
+        self.beyond_envelope = 0  # motion factors whose along-track axis the speed envelope left to the IMU
         self._motion_stream = motion_model.initial_state(1) if motion_model is not None else None
         self._motion_raw = np.zeros((0, 6))  # raw [gyro, acc] from sample self._base on, for the motion model
         self._motion_outputs = 0  # outputs of the motion model so far: output j ends at sample (j + 1) block - 1
@@ -509,11 +512,12 @@ class OnlineFusion:
             graph.add(gtsam.BetweenFactorConstantBias(B(k - 1), B(k), gtsam.imuBias.ConstantBias(), walk))
         for factor in self._gps_for.pop(k, []):
             graph.add(factor)
+        predicted = pim.predict(gtsam.NavState(*self._estimate(k - 1)), hat)
         if self._motion is not None:
-            factor = self._motion_factor(k, samples[0] - hat.gyroscope(), samples[2])
+            speed = predicted.pose().rotation().unrotate(predicted.velocity())  # body frame, the envelope's check
+            factor = self._motion_factor(k, samples[0] - hat.gyroscope(), samples[2], np.asarray(speed))
             if factor is not None:
                 graph.add(factor)
-        predicted = pim.predict(gtsam.NavState(*self._estimate(k - 1)), hat)
         values.insert(X(k), predicted.pose())
         values.insert(V(k), predicted.velocity())
         values.insert(B(k), hat)
@@ -525,10 +529,12 @@ class OnlineFusion:
             self._intervals.append(_Interval(k - 1, copies, hat, int(result.getNewFactorsIndices()[0])))
             self._relinearise()
 
-    def _motion_factor(self, k: int, gyro: np.ndarray, dt: np.ndarray) -> MotionFactor | None:
+    def _motion_factor(self, k: int, gyro: np.ndarray, dt: np.ndarray, estimate: np.ndarray) -> MotionFactor | None:
         """The motion model streamed over interval k-1 -> k (raw samples, the attitude before each one: keyframe
         k-1's estimate carried by the corrected ``gyro`` (M, 3) rad/s over ``dt`` (M,) s); the factor on keyframe k
-        from its last output within one block before k's sample, None without one."""
+        from its last output within one block before k's sample, None without one. ``estimate``: (3,) keyframe k's
+        predicted body-frame velocity, m/s: beyond the model's speed envelope (``motion.speed_envelope``) its
+        along-track axis is left to the IMU, as in the batch graph's passes."""
         import torch
 
         rot = self._estimate(k - 1)[0].rotation()
@@ -549,7 +555,11 @@ class OnlineFusion:
         if self._last_motion is None or self._last_motion[0] < self._kf_index[k] - self._motion.block:
             return None
         _, vel, var = self._last_motion
-        return MotionFactor(X(k), V(k), vel, var * self._motion_scale)
+        var = var * self._motion_scale
+        if self._speed_limit is not None:
+            out = BodyVelocities(np.zeros(1), vel[None], var[None]).outside_envelope(estimate[None], self._speed_limit)
+            var, self.beyond_envelope = out[0].var[0], self.beyond_envelope + int(out[1][0])
+        return MotionFactor(X(k), V(k), vel, var)
 
     def _bias_estimate(self, k: int) -> gtsam.imuBias.ConstantBias:
         return self._smoother.calculateEstimateConstantBias(B(k))

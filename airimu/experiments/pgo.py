@@ -29,6 +29,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 from dataclasses import asdict, dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -252,6 +253,12 @@ def ate_m(solution: Solution, truth: GpsFixes, fused: GpsFixes | None = None) ->
     return float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
 
 
+def _solved_with(last: Fused, export: Export, fusion: FusionSettings, bias, velocities) -> Fused:
+    """``last``'s graph (``export``, its fixes) with the motion factors of ``velocities``, solved from ``last``."""
+    graph, values = build_graph(export, last.gps, fusion, bias=bias, motion=velocities, guess=last.solution.values)
+    return Fused(solve(graph, values, export.keyframe_t, fusion), last.correction, last.gps, last.sequence)
+
+
 def run_sequence(
     sequence: ImuSequence,
     correction: Correction,
@@ -288,13 +295,12 @@ def run_sequence(
                     )
                 graph, values = build_graph(export, fuse, fusion, bias=setting.bias)
                 solution = solve(graph, values, export.keyframe_t, fusion)
-                for _ in range(motion_settings.passes if setting.motion else 0):
+                passes = motion_settings.passes if setting.motion else 0
+                for k in range(passes):  # the speed envelope checked in the last pass (airimu.fuse.motion_on)
                     fused = Fused(solution, correction, fuse, sequence)
-                    velocities = motion_on(fused, motion, motion_settings.cov_scale)
-                    graph, values = build_graph(
-                        export, fuse, fusion, bias=setting.bias, motion=velocities, guess=solution.values
-                    )
-                    solution = solve(graph, values, export.keyframe_t, fusion)
+                    solve_with = partial(_solved_with, fused, export, fusion, setting.bias)
+                    velocities = motion_on(fused, motion, motion_settings, solve_with if k == passes - 1 else None)
+                    solution = solve_with(velocities).solution
                 ates.append(ate_m(solution, truth, fuse if options.score_span == "gps" else None))
                 fits.append(consistency.residuals(solution.graph, solution.values))
                 if seed == 0 and rate == options.gps_hz[0]:

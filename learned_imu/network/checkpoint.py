@@ -8,9 +8,11 @@ dict of tensors, numbers, strings, lists and dicts only, so the safe loader acce
   the model is rebuilt without the YAML file;
 - ``trainer``: ``Trainer.state_dict()`` (model weights under ``model``, optimiser, schedule, RNG states, epochs done);
 - ``best``: the best validation record so far (``BestEpoch.to_dict()``; empty before the first epoch);
-- ``trained_on``: ``rate_hz``, the median IMU rate of the training sequences, and ``datasets``, their reader names
-  (None when unknown). ``model_from_checkpoint`` hands it to the model (``model.trained_on``), and
-  ``learned_imu.network.inference.correct`` refuses data whose rate differs by more than ``MAX_RATE_MISMATCH``.
+- ``trained_on``: ``rate_hz``, the median IMU rate of the training sequences, ``datasets``, their reader names, and
+  (optional, newer files) ``speed_m_s``, the highest ground-truth speed among them; None when unknown.
+  ``model_from_checkpoint`` hands it to the model (``model.trained_on``);
+  ``learned_imu.network.inference.correct`` refuses data whose rate differs by more than ``MAX_RATE_MISMATCH``, and
+  ``fusion.config.MotionSettings.speed_envelope`` reads the speed.
 - ``written_by``: the versions of ``airimu`` and ``torch`` that wrote the file (a file from a newer toolkit is
   refused naming the version it needs).
 
@@ -90,13 +92,20 @@ _REQUIRED = ("format", "version", "config", "trainer", "best")
 
 @dataclass(frozen=True)
 class TrainedOn:
-    """What a model was trained on: the median IMU rate of its training sequences (Hz) and their reader names."""
+    """What a model was trained on: the median IMU rate of its training sequences (Hz), their reader names, and
+    ``speed_m_s``, the highest ground-truth speed among them (the largest of each sequence's 99.9th percentile of
+    ``|v|``, m/s; None where unknown: files written before it was recorded). A motion model's forward velocity is
+    not trusted above it (``fusion.motion``: the speed envelope)."""
 
     rate_hz: float
     datasets: tuple[str, ...]
+    speed_m_s: float | None = None
 
     def to_dict(self) -> dict:
-        return {"rate_hz": self.rate_hz, "datasets": list(self.datasets)}
+        out = {"rate_hz": self.rate_hz, "datasets": list(self.datasets)}
+        if self.speed_m_s is not None:
+            out["speed_m_s"] = self.speed_m_s
+        return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -284,7 +293,15 @@ def _trained_on(data, path: Path) -> TrainedOn | None:
         raise DataError(path, "trained_on", f"expected rate_hz and datasets ({error!r})") from None
     if not (math.isfinite(rate) and rate > 0):
         raise DataError(path, "trained_on.rate_hz", f"must be a positive rate in Hz, got {rate!r}")
-    return TrainedOn(rate, datasets)
+    speed = data.get("speed_m_s")
+    if speed is not None:
+        try:
+            speed = float(speed)
+        except (TypeError, ValueError):
+            speed = math.nan
+        if not (math.isfinite(speed) and speed >= 0):
+            raise DataError(path, "trained_on.speed_m_s", f"must be a speed >= 0 in m/s, got {data['speed_m_s']!r}")
+    return TrainedOn(rate, datasets, speed)
 
 
 def _software() -> dict[str, str]:

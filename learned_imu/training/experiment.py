@@ -214,6 +214,17 @@ def build_motion_chunks(
     return concat_motion_chunks(parts)
 
 
+def training_speed(sequences: list[ImuSequence]) -> float | None:
+    """The highest ground-truth speed among ``sequences`` (m/s): the largest of each one's 99.9th percentile of
+    ``|v|`` over its valid samples (a single glitch does not set it); None when none has ground truth."""
+    speeds = [
+        float(np.percentile(np.linalg.norm(s.gt.vel[s.gt.valid], axis=1), 99.9))
+        for s in sequences
+        if s.gt is not None and s.gt.valid.any()
+    ]
+    return max(speeds) if speeds else None
+
+
 def loss_weights(config: ExperimentConfig) -> LossWeights:
     return LossWeights(**asdict(config.loss))
 
@@ -293,6 +304,7 @@ def _train_run(config: ExperimentConfig, folder: Path, progress: bool, world: Wo
     trained_on = TrainedOn(
         rate_hz=float(np.median([1.0 / float(np.median(np.diff(s.t))) for s in train_seqs])),
         datasets=tuple(sorted({spec.dataset for spec in config.data.train})),
+        speed_m_s=training_speed(train_seqs),
     )
     history, best = _resume(folder, config, trainer)
     if not agree(trainer.epochs_done, world):

@@ -151,7 +151,7 @@ def test_motion_rows_run_on_the_solution_attitude_and_beat_their_rows_between_sp
     body = body + np.random.default_rng(0).normal(0.0, 0.05, body.shape)
     calls = []
 
-    def velocities(result, motion, cov_scale):
+    def velocities(result, motion, settings, solve_with=None):
         calls.append(result.solution.trajectory.rot)  # the solution it reads
         return BodyVelocities(result.sequence.t[ends], body, np.full_like(body, 0.05**2))
 

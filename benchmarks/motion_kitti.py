@@ -268,6 +268,9 @@ def main() -> None:
         default=MotionSettings.speed_envelope,
         help="motion.speed_envelope: a factor on the model's training speed, or none",
     )
+    parser.add_argument(
+        "--estimate-bias", action="store_true", help="FuseConfig.estimate_bias: bias states in the no-GPS graphs"
+    )
     parser.add_argument("--outages", action="store_true", help="also the GPS-outage rows")
     parser.add_argument("--gtsam-drive", action="store_true", help="only GTSAM's drive, one fix in ten (fold 1)")
     parser.add_argument(
@@ -290,6 +293,7 @@ def main() -> None:
         keyframe_s=1.0,
         imu_gaps=args.imu_gaps,
         motion=motion,
+        estimate_bias=args.estimate_bias,
     )
     rows, outages = [], []
     if args.gtsam_drive:

@@ -212,3 +212,26 @@ def test_out_of_range_pgo_values_are_named(tmp_path, options, message):
     with pytest.raises(ConfigError, match=message) as info:
         load_pgo_config(pgo)
     assert str(pgo) in str(info.value)
+
+
+def test_kitti_leave_one_out_never_trains_or_validates_on_its_test_drive(shared_data):
+    """benchmarks/motion_kitti_loo.py: each of AI-IMU's ten sequences gets a model trained on every template drive
+    but its own, which it alone evaluates; the validation drives are no sequence and never trained on."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+    from motion_kitti import SEQUENCES
+    from motion_kitti_loo import TEMPLATE, held_out
+
+    template = load_config(TEMPLATE, data_root=shared_data)
+    name = lambda spec: Path(spec.path).stem  # noqa: E731
+    drives = {drive for drive, *_ in SEQUENCES.values()}
+    assert {name(s) for s in template.data.evaluate} == drives
+    assert drives <= {name(s) for s in template.data.train}
+    assert not {name(s) for s in template.data.val} & (drives | {name(s) for s in template.data.train})
+    for sequence, (drive, *_) in SEQUENCES.items():
+        config = held_out(template, sequence)
+        assert [name(s) for s in config.data.evaluate] == [drive]
+        assert drive not in {name(s) for s in config.data.train}
+        assert {name(s) for s in config.data.train} == {name(s) for s in template.data.train} - {drive}
+        assert config.data.val == template.data.val and config.name.endswith(sequence)

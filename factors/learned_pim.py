@@ -37,6 +37,7 @@ MIN_SAMPLES_FOR_GRAVITY_CHECK = 10
 MAX_COV = {"gyro_cov": 1.0, "acc_cov": 100.0}
 # a median sample period above this is no IMU's (seconds given in another unit, or a total duration as dt)
 MAX_MEDIAN_DT_S = 0.11  # s: an IMU slower than ~9 Hz is none (KITTI's synced OXTS, the slowest here: 0.1 s)
+MIN_SAMPLES_FOR_RATE_CHECK = 3
 GRAVITY_RANGE = (9.7, 9.9)  # m/s^2: Earth's gravity from the equator to the poles, sea level to 10 km
 log = logging.getLogger(__name__)
 
@@ -146,7 +147,9 @@ def _checked(gyro, acc, dt, gyro_cov, acc_cov):
     if not np.all(np.isfinite(dt)) or np.any(dt <= 0):
         raise ValueError("learned_pim: dt must be positive and finite for every sample")
     step = float(np.median(dt))
-    if step > MAX_MEDIAN_DT_S:
+    # one or two samples of which one spans a gap (a stream's interval across KITTI's 1-2-s losses) have no median
+    # that tells the gap from a wrong unit; with one step for every sample, or three and more, it does
+    if step > MAX_MEDIAN_DT_S and (n >= MIN_SAMPLES_FOR_RATE_CHECK or np.all(dt == dt[0])):
         raise ValueError(
             f"learned_pim: the median dt is {step:.3g} s ({n} samples: {step * n:.3g} s preintegrated), slower than "
             f"any IMU ({1 / MAX_MEDIAN_DT_S:.0f} Hz): is it the keyframe interval? dt is each sample's own step, "

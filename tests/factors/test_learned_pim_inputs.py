@@ -47,6 +47,11 @@ def test_a_time_step_slower_than_any_imu_is_refused(kitti):
     gaps = np.full(len(gyro), 0.01)
     gaps[100] = 5.0  # one real gap among 100 Hz samples: accepted
     learned_pim(gyro, acc, gaps, 1e-8, 1e-4, 9.8)
+    # a stream's interval of two samples, the second across a 1.58-s gap (KITTI seq 00 online): accepted; the same
+    # two with the keyframe interval as one dt for both: still refused
+    learned_pim(gyro[:2], acc[:2], np.array([0.01, 1.58]), 1e-8, 1e-4, 9.8)
+    with pytest.raises(ValueError, match=r"median dt is 0.5 s"):
+        learned_pim(gyro[:2], acc[:2], 0.5, 1e-8, 1e-4, 9.8)
 
 
 def test_ragged_complex_or_text_inputs_are_refused_by_name_not_by_numpy():

@@ -120,6 +120,8 @@ class OnlineFusion:
             attitude the graph predicts for them (the last keyframe's estimate carried by the corrected gyro; never
             ground truth). The factor of keyframe k holds the model's last output before k's sample (at most one
             block, 9 samples, earlier: choose ``keyframe_s`` a whole number of blocks to make them coincide).
+            Where the keyframe's predicted speed exceeds the model's speed envelope (``motion.speed_envelope``), the
+            factor's along-track axis is left to the IMU; ``beyond_envelope`` counts those factors.
     """
 
     def __init__(self, model, gravity, initial_state, config: FuseConfig | None = None, motion_model=None):
@@ -534,7 +536,8 @@ class OnlineFusion:
         k-1's estimate carried by the corrected ``gyro`` (M, 3) rad/s over ``dt`` (M,) s); the factor on keyframe k
         from its last output within one block before k's sample, None without one. ``estimate``: (3,) keyframe k's
         predicted body-frame velocity, m/s: beyond the model's speed envelope (``motion.speed_envelope``) its
-        along-track axis is left to the IMU, as in the batch graph's passes."""
+        along-track axis is left to the IMU (the batch graph checks a solve with that axis free instead; a stream
+        has only its prediction) and ``beyond_envelope`` counts it."""
         import torch
 
         rot = self._estimate(k - 1)[0].rotation()

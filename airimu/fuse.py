@@ -27,6 +27,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -305,20 +306,19 @@ def _solve(sequence, fixes, correction, config, motion_model, initial_state, end
     export = preintegration_export(blind, index, correction=correction)
     solution, found = solve_export(export, fixes, config, initial_state, still=still)
     fused = fixes if fixes is not None else GpsFixes.none()
-    velocities = None
+    result = Fused(solution, correction, fused, sequence, found)
 
-    def solve_with(motion: BodyVelocities) -> Fused:
-        solved, checks = solve_export(export, fixes, config, initial_state, motion, guess=solution.values, still=still)
+    def solve_with(last: Fused, motion: BodyVelocities) -> Fused:  # the graph with these factors, from ``last``
+        solved, checks = solve_export(
+            export, fixes, config, initial_state, motion, guess=last.solution.values, still=still
+        )
         return Fused(solved, correction, fused, sequence, checks, motion)
 
     passes = config.motion.passes if motion_model is not None else 0
     for k in range(passes):  # each pass on the last attitude; the speed envelope checked in the last
-        last = solve_with if k == passes - 1 else None
-        velocities = motion_on(Fused(solution, correction, fused, sequence), motion_model, config.motion, last)
-        solution, found = solve_export(
-            export, fixes, config, initial_state, velocities, guess=solution.values, still=still
-        )
-    return Fused(solution, correction, fused, sequence, found, velocities)
+        check = partial(solve_with, result) if k == passes - 1 else None
+        result = solve_with(result, motion_on(result, motion_model, config.motion, check))
+    return result
 
 
 def _start_state(sequence: ImuSequence, start):
@@ -802,7 +802,7 @@ def motion_on(result: Fused, motion_model, settings: MotionSettings, solve_with=
     limit = settings.speed_limit_m_s(motion_model)
     if limit is None or solve_with is None:
         return velocities
-    checked = solve_with(velocities.along_track_free(body_velocity(result, velocities.t)))
+    checked = imu_rate_trajectory(solve_with(velocities.along_track_free(body_velocity(dense, velocities.t))))
     velocities, beyond = velocities.outside_envelope(body_velocity(checked, velocities.t), limit)
     if beyond.any():
         log.warning(
@@ -817,10 +817,9 @@ def motion_on(result: Fused, motion_model, settings: MotionSettings, solve_with=
     return velocities
 
 
-def body_velocity(result: Fused, t: np.ndarray) -> np.ndarray:
-    """(M, 3) the estimated body-frame velocity ``R^T v`` (m/s) at times ``t`` (M,) s: ``imu_rate_trajectory``'s
-    at the sample at or after each time (held outside the keyframes' span)."""
-    dense = imu_rate_trajectory(result)
+def body_velocity(dense: Trajectory, t: np.ndarray) -> np.ndarray:
+    """(M, 3) the body-frame velocity ``R^T v`` (m/s) of an ``imu_rate_trajectory`` at times ``t`` (M,) s: its
+    sample at or after each time (held outside its span)."""
     k = np.clip(np.searchsorted(dense.t, t), 0, len(dense.t) - 1)
     return np.einsum("mji,mj->mi", dense.rot[k], dense.vel[k])
 

@@ -160,9 +160,10 @@ class MotionSettings:
       from the IMU's body frame to the frame the model's velocities are in), with a prior at identity of this sigma
       (rad; one, or three: roll, pitch, yaw): for a model used on an IMU mounted otherwise than in its training.
       On KITTI's drives (one car) it does not help: the model reads the drive's pitch off gravity (BENCHMARKS.md).
-    - ``speed_envelope``: from the second pass on, where the previous solution's speed exceeds this times the
-      model's training speed (``trained_on.speed_m_s`` of its checkpoint: the highest in its training data), the
-      model's along-track velocity is left to the IMU (``BodyVelocities.outside_envelope``): a network does not
+    - ``speed_envelope``: in the last pass the graph is solved once with every factor's along-track axis left to
+      the IMU; where that solution is faster than this times the model's training speed (``trained_on.speed_m_s``
+      of its checkpoint: the highest in its training data), the along-track axis stays free
+      (``BodyVelocities.outside_envelope``; ``OnlineFusion``: each keyframe's predicted speed): a network does not
       know speeds it never saw (KITTI's highway, seq 01, at 24 m/s against 20 in training: 7 m/s low). null: never;
       a model without the record (trained before it was kept) is not checked.
     """

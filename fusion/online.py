@@ -516,8 +516,8 @@ class OnlineFusion:
             graph.add(factor)
         predicted = pim.predict(gtsam.NavState(*self._estimate(k - 1)), hat)
         if self._motion is not None:
-            speed = predicted.pose().rotation().unrotate(predicted.velocity())  # body frame, the envelope's check
-            factor = self._motion_factor(k, samples[0] - hat.gyroscope(), samples[2], np.asarray(speed))
+            body = predicted.pose().rotation().unrotate(predicted.velocity())  # R^T v, for the speed envelope
+            factor = self._motion_factor(k, samples[0] - hat.gyroscope(), samples[2], np.asarray(body))
             if factor is not None:
                 graph.add(factor)
         values.insert(X(k), predicted.pose())

@@ -95,7 +95,7 @@ class TrainedOn:
     """What a model was trained on: the median IMU rate of its training sequences (Hz), their reader names, and
     ``speed_m_s``, the highest ground-truth speed among them (the largest of each sequence's 99.9th percentile of
     ``|v|``, m/s; None where unknown: files written before it was recorded). A motion model's forward velocity is
-    not trusted above it (``fusion.motion``: the speed envelope)."""
+    not trusted above it (``fusion.config.MotionSettings.speed_envelope``)."""
 
     rate_hz: float
     datasets: tuple[str, ...]

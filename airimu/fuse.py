@@ -219,6 +219,9 @@ def fuse(
         if bridged is not sequence:
             log.info("%s: the IMU's gaps filled with %d samples (imu_gaps)", where, len(bridged.t) - len(sequence.t))
             sequence = bridged
+    if config.imu_delay_s:
+        log.info("%s: the IMU's samples moved %.1f ms earlier (imu_delay_s)", where, 1e3 * config.imu_delay_s)
+        sequence = sequence.imu_delay_removed(config.imu_delay_s)
     fixes = gps if gps is not None else sequence.gps
     if model is not None and not config.noise_is_default:
         raise InputError(

@@ -231,6 +231,20 @@ class ImuSequence:
             gt = GroundTruth(self.gt.rot[before], linear(self.gt.pos), linear(self.gt.vel), valid)
         return ImuSequence(self.name, t, linear(self.gyro), linear(self.acc), self.gravity, gt, self.gps, self.source)
 
+    def imu_delay_removed(self, delay_s: float) -> ImuSequence:
+        """The sequence with its IMU ``delay_s`` seconds late against its clock (the ground truth's and the GPS's):
+        the gyro and acc at each sample time ``t`` become the readings at ``t + delay_s`` (linear between samples;
+        held past the ends). Times, ground truth and fixes are unchanged; the same object for a delay of 0."""
+        if delay_s == 0:
+            return self
+
+        def moved(values: np.ndarray) -> np.ndarray:
+            return np.column_stack([np.interp(self.t + delay_s, self.t, values[:, i]) for i in range(3)])
+
+        return ImuSequence(
+            self.name, self.t, moved(self.gyro), moved(self.acc), self.gravity, self.gt, self.gps, self.source
+        )
+
     def _samples(self, cut: slice, name: str) -> ImuSequence:
         """The samples ``cut`` with their ground truth and the GPS fixes inside their time span."""
         gt = None

@@ -272,6 +272,24 @@ def gtsam_validation_rows(net, fold_config, motion: MotionSettings) -> list[dict
     return rows
 
 
+def measured_delay() -> dict:
+    """``--measure-delay``: the IMU's delay against the ground truth, pooled over the LOO template's training drives
+    that are none of the ten sequences (so no sequence's score chose it), and each drive's own."""
+    from learned_imu.evaluation.imu_delay import measure_imu_delay
+
+    template = load_config("configs/kitti_motion_loo.yaml")
+    drives = {drive for drive, *_ in SEQUENCES.values()}
+    specs = [spec for spec in template.data.train if not any(drive in spec.path for drive in drives)]
+    found = measure_imu_delay(load_sequences(specs, template.data.root))
+    return {
+        "imu_delay_s": round(found.delay_s, 4),
+        "drives": [
+            {"drive": name, "own_delay_s": round(own, 4), "rate_mse_at_delay": mse, "rate_mse_at_zero": zero}
+            for name, own, mse, zero in found.sequences
+        ],
+    }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--fold", nargs=2, action="append", default=[], metavar=("N", "CHECKPOINT"))
@@ -290,6 +308,29 @@ def main() -> None:
     )
     parser.add_argument(
         "--mount-sigma", type=float, nargs="+", help="motion.mount_sigma_rad: a mounting-rotation state (1 or 3, rad)"
+    )
+    parser.add_argument(
+        "--scale",
+        type=float,
+        nargs=3,
+        metavar=("SIGMA", "WALK", "INTERVAL_S"),
+        help="motion.scale_sigma, scale_walk (per sqrt(s)), scale_interval_s: speed-scale states",
+    )
+    parser.add_argument(
+        "--start-sigmas",
+        type=float,
+        nargs=2,
+        metavar=("ROT_RAD", "VEL_M_S"),
+        help="the prior on the ground-truth start (graph.prior_rot_sigma_rad, prior_vel_sigma_m_s; default the "
+        "fuse config's 0.01 rad, 0.1 m/s; AI-IMU's KITTI filter starts at 1e-3 rad, 0.316 m/s: cov_Rot0 1e-6, "
+        "cov_v0 1e-1)",
+    )
+    parser.add_argument("--imu-delay", type=float, default=0.0, help="FuseConfig.imu_delay_s of every row (s)")
+    parser.add_argument(
+        "--measure-delay",
+        action="store_true",
+        help="only measure the IMU's delay (learned_imu.evaluation.imu_delay) on the LOO template's training drives "
+        "that are no sequence (configs/kitti_motion_loo.yaml)",
     )
     parser.add_argument(
         "--imu-gaps",
@@ -320,19 +361,30 @@ def main() -> None:
     )
     parser.add_argument("--json", help="write the rows here")
     args = parser.parse_args()
+    if args.measure_delay:
+        print(json.dumps(measured_delay()))
+        return
     if bool(args.fold) == bool(args.loo):
         parser.error("give --fold N CHECKPOINT (once or twice) or --loo DIR")
     logging.basicConfig(level=logging.ERROR)
     mount = None if args.mount_sigma is None else tuple(args.mount_sigma)
     motion = MotionSettings(args.keyframe_s, args.passes, tuple(args.cov_scale), mount, args.speed_envelope)
+    if args.scale:
+        sigma, walk, interval = args.scale
+        motion = dataclasses.replace(motion, scale_sigma=sigma, scale_walk=walk, scale_interval_s=interval)
     config = FuseConfig(
         gyro_noise_density=GTSAM_NOISE[0],
         acc_noise_density=GTSAM_NOISE[1],
         keyframe_s=1.0,
         imu_gaps=args.imu_gaps,
+        imu_delay_s=args.imu_delay,
         motion=motion,
         estimate_bias=args.estimate_bias,
     )
+    if args.start_sigmas:
+        rot, vel = args.start_sigmas
+        graph = dataclasses.replace(config.graph, prior_rot_sigma_rad=rot, prior_vel_sigma_m_s=vel)
+        config = dataclasses.replace(config, graph=graph)
     rows, outages = [], []
     if args.gtsam_drive:
         net = motion_from_checkpoint(dict(args.fold)["1"])[0]

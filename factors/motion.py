@@ -10,6 +10,9 @@ the right-multiplied perturbation ``R Exp(w)``: ``d e / d X_i = [skew(R_i^T v_i)
 (``(R Exp(w))^T v = R^T v - w x R^T v`` to first order); ``Rot3.unrotate`` computes both in C++. With a mounting
 rotation ``M`` (``mount_key``, a ``Rot3`` shared by a log's factors: the IMU body frame <- the frame of the model's
 velocities) ``e = M^T R_i^T v_i - v_body``: the Jacobians above times ``M^T``, and ``d e / d M = skew(M^T R_i^T v_i)``.
+With a speed scale ``s`` (``scale_key``, a ``Vector`` of one shared by the factors of a stretch of the log: how much
+faster the platform moves than the model reads) ``e = R_i^T v_i - s v_body`` and ``d e / d s = -v_body``: the model's
+error as a slowly varying scale rather than white noise (``fusion.config.MotionSettings.scale_sigma``).
 
 Speed. No C++ factor in gtsam 4.3's Python module has this error on (Pose3, Vector3) keys, so this is a Python
 ``gtsam.CustomFactor``. Inside GTSAM's own optimisers (``LevenbergMarquardtOptimizer``, ``ISAM2``) pybind11 hands the
@@ -42,9 +45,11 @@ MIN_MODEL_FIDELITY = 1e-3
 class MotionFactor(gtsam.CustomFactor):
     """Body-frame velocity ``v_body`` (m/s) measured at (X(i), V(i)), with its covariance ((3,) variances or 3x3,
     (m/s)^2). Error ``R_i^T v_i - v_body``, or ``M^T R_i^T v_i - v_body`` with a mounting rotation at ``mount_key``
-    (module docstring)."""
+    (module docstring), or ``... - s v_body`` with a speed scale ``s`` (a ``Vector`` of one) at ``scale_key``."""
 
-    def __init__(self, pose_key: int, vel_key: int, v_body, cov, mount_key: int | None = None):
+    def __init__(
+        self, pose_key: int, vel_key: int, v_body, cov, mount_key: int | None = None, scale_key: int | None = None
+    ):
         self.v_body = _finite("v_body", v_body, ((3,),), "(3,) m/s")
         cov = _finite("cov", cov, ((3,), (3, 3)), "(3,) variances or (3, 3), (m/s)^2")
         problem = covariance_problem(cov)
@@ -55,17 +60,18 @@ class MotionFactor(gtsam.CustomFactor):
             noise = gtsam.noiseModel.Diagonal.Variances(cov)
         else:
             noise = gtsam.noiseModel.Gaussian.Covariance(self.cov)
-        self.pose_key, self.vel_key, self.mount_key = pose_key, vel_key, mount_key
-        keys = [pose_key, vel_key] if mount_key is None else [pose_key, vel_key, mount_key]
+        self.pose_key, self.vel_key, self.mount_key, self.scale_key = pose_key, vel_key, mount_key, scale_key
+        keys = [pose_key, vel_key] + [key for key in (mount_key, scale_key) if key is not None]
         super().__init__(noise, keys, self._evaluate)
 
     def _evaluate(self, this: gtsam.CustomFactor, values: gtsam.Values, jacobians: list | None) -> np.ndarray:
         rot = values.atPose3(self.pose_key).rotation()
         vel = values.atVector(self.vel_key)
         mount = None if self.mount_key is None else values.atRot3(self.mount_key)
+        measured = self.v_body if self.scale_key is None else values.atVector(self.scale_key)[0] * self.v_body
         if jacobians is None:
             v_in_body = rot.unrotate(vel)
-            return (v_in_body if mount is None else mount.unrotate(v_in_body)) - self.v_body
+            return (v_in_body if mount is None else mount.unrotate(v_in_body)) - measured
         d_rot, d_vel = np.zeros((3, 3), order="F"), np.zeros((3, 3), order="F")
         v_in_body = rot.unrotate(vel, d_rot, d_vel)  # d_rot = skew(R^T v), d_vel = R^T
         d_pose = np.zeros((3, 6))
@@ -75,9 +81,11 @@ class MotionFactor(gtsam.CustomFactor):
             v_in_body = mount.unrotate(v_in_body, d_mount, d_u)
             d_pose, d_vel = d_u @ d_pose, d_u @ d_vel
             jacobians[2] = d_mount
+        if self.scale_key is not None:
+            jacobians[2 if mount is None else 3] = -self.v_body[:, None]
         jacobians[0] = d_pose
         jacobians[1] = d_vel
-        return v_in_body - self.v_body
+        return v_in_body - measured
 
 
 def motion_factors(
@@ -87,6 +95,7 @@ def motion_factors(
     vel_key=gtsam.symbol_shorthand.V,
     keys=None,
     mount_key: int | None = None,
+    scale_keys=None,
 ) -> list[MotionFactor]:
     """One ``MotionFactor`` per row: row r on (``pose_key(k)``, ``vel_key(k)``) with ``k = keys[r]``.
 
@@ -98,6 +107,8 @@ def motion_factors(
         keys: (K,) the keyframe index of each row; default 0 .. K-1.
         mount_key: a ``Rot3`` key M shared by every factor (a mounting rotation: error ``M^T R_i^T v_i - v_body``),
             or None.
+        scale_keys: (K,) the speed-scale key of each row (a ``Vector`` of one: error ``R_i^T v_i - s v_body``), or
+            None for no scale.
     """
     v_body = real_array(v_body, "motion_factors: v_body")
     cov = real_array(cov, "motion_factors: cov")
@@ -111,10 +122,13 @@ def motion_factors(
     index = np.arange(count) if keys is None else np.asarray(keys)
     if index.shape != (count,) or not np.issubdtype(index.dtype, np.integer):
         raise InputError(f"motion_factors: keys must be {count} integer keyframe indices, got {repr(keys)[:60]}")
+    if scale_keys is not None and len(scale_keys) != count:
+        raise InputError(f"motion_factors: scale_keys must be {count} keys, got {len(scale_keys)}")
+    scales = [None] * count if scale_keys is None else [int(key) for key in scale_keys]
     factors = []
     for row, k in enumerate(index.tolist()):
         try:
-            factors.append(MotionFactor(pose_key(k), vel_key(k), v_body[row], cov[row], mount_key))
+            factors.append(MotionFactor(pose_key(k), vel_key(k), v_body[row], cov[row], mount_key, scales[row]))
         except InputError as error:
             raise InputError(f"motion_factors: row {row} (keyframe {k}): {error}") from None
     return factors
@@ -143,6 +157,13 @@ class MotionTerms:
         if len(mounts) > 1:
             raise GraphError(f"MotionTerms: the factors must share one mount key (or none), got {len(mounts)}")
         self.mount_key = mounts.pop() if mounts else None
+        scaled = {f.scale_key is not None for f in factors}
+        if len(scaled) > 1 or (self.mount_key is not None and True in scaled):
+            raise GraphError(
+                "MotionTerms: the factors must all have a speed scale or none, and not both a scale and a mount "
+                "rotation (a JacobianFactor of four keys); add such factors to the graph instead"
+            )
+        self.scale_keys = np.array([f.scale_key for f in factors], dtype=np.uint64) if True in scaled else None
         self.pose_keys = np.array([f.pose_key for f in factors], dtype=np.uint64)
         self.vel_keys = np.array([f.vel_key for f in factors], dtype=np.uint64)
         self.v_body = np.array([f.v_body for f in factors]).reshape(-1, 3)
@@ -165,9 +186,18 @@ class MotionTerms:
             d_pose, d_vel = mount.T @ d_pose, mount.T @ d_vel
             a_mount = self.whiten @ _skew(u @ mount)
         a_pose, a_vel = self.whiten @ d_pose, self.whiten @ d_vel
+        if self.scale_keys is not None:  # e = u - s v_body: d e / d s = -v_body
+            a_scale = -(self.whiten @ self.v_body[:, :, None])
+            scale_keys = self.scale_keys.tolist()
         out = gtsam.GaussianFactorGraph()
         for k, (pose_key, vel_key) in enumerate(zip(self.pose_keys.tolist(), self.vel_keys.tolist(), strict=True)):
-            if mount is None:
+            if self.scale_keys is not None:
+                out.push_back(
+                    gtsam.JacobianFactor(
+                        pose_key, a_pose[k], vel_key, a_vel[k], scale_keys[k], a_scale[k], -white[k], self._unit
+                    )
+                )
+            elif mount is None:
                 out.push_back(gtsam.JacobianFactor(pose_key, a_pose[k], vel_key, a_vel[k], -white[k], self._unit))
             else:
                 out.push_back(
@@ -188,20 +218,26 @@ class MotionTerms:
         v_in_body = np.einsum("kji,kj->ki", rot, vel)
         mount = self._mount(values)
         measured = v_in_body if mount is None else v_in_body @ mount
-        return rot, v_in_body, np.einsum("kij,kj->ki", self.whiten, measured - self.v_body)
+        predicted = self.v_body if self.scale_keys is None else self._vectors(values, self.scale_keys, 1) * self.v_body
+        return rot, v_in_body, np.einsum("kij,kj->ki", self.whiten, measured - predicted)
 
     def _velocities(self, values: gtsam.Values) -> np.ndarray:
+        return self._vectors(values, self.vel_keys, 3)
+
+    @staticmethod
+    def _vectors(values: gtsam.Values, wanted: np.ndarray, dim: int) -> np.ndarray:
+        """(len(wanted), dim) the ``Vector`` values at keys ``wanted``, read in bulk per symbol character."""
         keys = np.array(values.keys(), dtype=np.uint64)
-        out = np.empty((len(self.vel_keys), 3))
-        chars = self.vel_keys >> np.uint64(56)  # gtsam.Symbol: the character in the top byte
+        out = np.empty((len(wanted), dim))
+        chars = wanted >> np.uint64(56)  # gtsam.Symbol: the character in the top byte
         for char in np.unique(chars):
             mine = chars == char
             named = keys[(keys >> np.uint64(56)) == char]
             rows = gtsam.utilities.extractVectors(values, chr(int(char)))
-            if rows.shape == (len(named), 3):
-                out[mine] = rows[key_rows(named, self.vel_keys[mine], "velocity", "MotionTerms")]
+            if rows.shape == (len(named), dim):
+                out[mine] = rows[key_rows(named, wanted[mine], "velocity" if dim == 3 else "scale", "MotionTerms")]
             else:  # the character also names other values: one by one
-                out[mine] = [values.atVector(int(key)) for key in self.vel_keys[mine]]
+                out[mine] = [values.atVector(int(key)) for key in wanted[mine]]
         return out
 
 

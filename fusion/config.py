@@ -166,6 +166,11 @@ class MotionSettings:
       (``BodyVelocities.outside_envelope``; ``OnlineFusion``: each keyframe's predicted speed): a network does not
       know speeds it never saw (KITTI's highway, seq 01, at 24 m/s against 20 in training: 7 m/s low). null: never;
       a model without the record (trained before it was kept) is not checked.
+    - ``scale_sigma``: null, or speed-scale states: the model's velocities times a scale ``s`` (one per
+      ``scale_interval_s`` of the log, ``factors.MotionFactor``'s ``scale_key``) with a prior at 1 of this sigma and
+      a random walk of ``scale_walk`` per sqrt(s) between them: a model that reads a drive a few percent slow all the
+      way (KITTI seq 04) is an error correlated over minutes, not white noise, and the IMU then sets the scale.
+      Batch only.
     """
 
     keyframe_s: float | None = 0.2
@@ -173,6 +178,9 @@ class MotionSettings:
     cov_scale: float | tuple[float, float, float] = 1.0
     mount_sigma_rad: float | tuple[float, float, float] | None = None
     speed_envelope: float | None = 1.0
+    scale_sigma: float | None = None
+    scale_walk: float = 0.01
+    scale_interval_s: float = 10.0
 
     def __post_init__(self):
         if self.keyframe_s is not None and not (math.isfinite(self.keyframe_s) and self.keyframe_s > 0):
@@ -194,21 +202,34 @@ class MotionSettings:
                 )
             object.__setattr__(self, "mount_sigma_rad", sigma)
         envelope = self.speed_envelope
-        if envelope is not None and not (
-            isinstance(envelope, (int, float))
-            and not isinstance(envelope, bool)
-            and math.isfinite(envelope)
-            and envelope > 0
-        ):
+        if envelope is not None and not (_is_number(envelope) and envelope > 0):
             raise ConfigError(f"motion.speed_envelope must be a positive factor or null, got {envelope!r}")
         if envelope is not None:
             object.__setattr__(self, "speed_envelope", float(envelope))
+        if self.scale_sigma is not None and not (_is_number(self.scale_sigma) and self.scale_sigma > 0):
+            raise ConfigError(f"motion.scale_sigma must be a positive sigma or null, got {self.scale_sigma!r}")
+        if not (_is_number(self.scale_walk) and self.scale_walk >= 0):
+            raise ConfigError(f"motion.scale_walk must be a sigma >= 0 (per sqrt(s)), got {self.scale_walk!r}")
+        if not (_is_number(self.scale_interval_s) and self.scale_interval_s > 0):
+            raise ConfigError(f"motion.scale_interval_s must be a positive interval (s), got {self.scale_interval_s!r}")
+        for name in ("scale_sigma", "scale_walk", "scale_interval_s"):
+            if getattr(self, name) is not None:
+                object.__setattr__(self, name, float(getattr(self, name)))
+
+    def speed_scale(self) -> tuple[float, float, float] | None:
+        """(prior sigma, random walk per sqrt(s), interval s) of the speed-scale states, or None (none)."""
+        return None if self.scale_sigma is None else (self.scale_sigma, self.scale_walk, self.scale_interval_s)
 
     def speed_limit_m_s(self, motion_model) -> float | None:
         """The speed (m/s) above which ``motion_model``'s along-track velocity is left to the IMU, or None (no
         envelope set, or a model without its training speed)."""
         trained = getattr(getattr(motion_model, "trained_on", None), "speed_m_s", None)
         return None if self.speed_envelope is None or trained is None else self.speed_envelope * trained
+
+
+def _is_number(value) -> bool:
+    """A finite int or float (not a bool)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _one_or_three(value, allowed: Callable[[float], bool]) -> float | tuple[float, float, float] | None:
@@ -226,6 +247,7 @@ def _one_or_three(value, allowed: Callable[[float], bool]) -> float | tuple[floa
 
 
 IMU_GAPS = ("hold", "interpolate")  # FuseConfig.imu_gaps
+MAX_IMU_DELAY_S = 0.5  # FuseConfig.imu_delay_s: a larger one is a unit mistake or a clock that needs fixing upstream
 
 
 @dataclass(frozen=True)
@@ -244,6 +266,10 @@ class FuseConfig:
     - ``imu_gaps``: ``"hold"``: a gap in the IMU samples (a step over 5 median steps) is integrated with the sample
       before it held (GTSAM's ``integrateMeasurement(acc, gyro, dt)``); ``"interpolate"``: filled with samples linear
       between the two either side (``ImuSequence.bridge_gaps``: the trapezoidal rule over the gap; batch only).
+    - ``imu_delay_s``: how late (s) the IMU's samples are against the clock of the GPS and the start state: each
+      sample is replaced by the reading ``imu_delay_s`` later (``ImuSequence.imu_delay_removed``; batch only).
+      KITTI's OXTS stream lags its own navigation solution by 50-60 ms (``measure_imu_delay`` on its training
+      drives: BENCHMARKS.md); 0: none.
     - ``graph``: robust loss, lever arm, priors and the solver; ``online``: the smoother of ``OnlineFusion``;
       ``motion``: the learned motion factors, used when a motion model is given (``MotionSettings``).
     """
@@ -255,6 +281,7 @@ class FuseConfig:
     estimate_bias: bool = False
     still_start: bool = True
     imu_gaps: str = "hold"
+    imu_delay_s: float = 0.0
     bias: BiasStates = field(default_factory=BiasStates)
     graph: FusionSettings = field(default_factory=FusionSettings)
     online: OnlineSettings = field(default_factory=OnlineSettings)
@@ -271,6 +298,12 @@ class FuseConfig:
             raise ConfigError(f"still_start must be true or false, got {self.still_start!r}")
         if self.imu_gaps not in IMU_GAPS:
             raise ConfigError(f"imu_gaps must be one of {', '.join(IMU_GAPS)}, got {self.imu_gaps!r}")
+        if not (_is_number(self.imu_delay_s) and abs(self.imu_delay_s) <= MAX_IMU_DELAY_S):
+            raise ConfigError(
+                f"imu_delay_s must be a delay (s) within +-{MAX_IMU_DELAY_S:g}, got {self.imu_delay_s!r} (a value in "
+                "ms?)"
+            )
+        object.__setattr__(self, "imu_delay_s", float(self.imu_delay_s))
 
     @property
     def noise_density(self) -> tuple[float, float]:

@@ -65,6 +65,7 @@ from fusion.still import StillStart
 log = logging.getLogger(__name__)
 
 X, V, B, M = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.V, gtsam.symbol_shorthand.B, gtsam.symbol_shorthand.M
+S = gtsam.symbol_shorthand.S  # the motion factors' speed scales
 
 
 # GPS fixes are the readers' record, airimu_core.sequence.GpsFixes (t (M,) s on the IMU clock, pos (M, 3)
@@ -152,6 +153,7 @@ def build_graph(
     guess: gtsam.Values | None = None,
     still: StillStart | None = None,
     mount_sigma_rad=None,
+    speed_scale: tuple[float, float, float] | None = None,
 ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
     """The pose graph of an export, GPS fixes and learned body-frame velocities, and its initial values (see the
     module docstring).
@@ -169,7 +171,10 @@ def build_graph(
     about the horizontal axes (``fusion.align.aligned_prior``). ``mount_sigma_rad``: with ``motion``, a mounting
     rotation state ``M(0)`` (``Rot3``, the IMU body frame <- the frame the model's velocities are in) on every motion
     factor, with a prior at identity of these sigmas (rad, one or three: roll, pitch, yaw)
-    (``fusion.config.MotionSettings.mount_sigma_rad``).
+    (``fusion.config.MotionSettings.mount_sigma_rad``). ``speed_scale``: with ``motion``, (prior sigma, random walk
+    per sqrt(s), interval s): a speed scale ``S(j)`` (a ``Vector`` of one) on the motion factors of the j-th interval
+    from the first keyframe, a prior at 1 on ``S(0)`` and a random walk between consecutive scales
+    (``fusion.config.MotionSettings.scale_sigma``).
     """
     settings = settings or FusionSettings()
     export = export if isinstance(export, Export) else load_export(export)
@@ -206,12 +211,17 @@ def build_graph(
     if len(gps.t) and not gps_factors:
         raise InputError(f"{export.path}: no GPS fix lies within half a keyframe interval of a keyframe")
     mount = M(0) if motion is not None and mount_sigma_rad is not None else None
-    moving = keyframe_motion_factors(motion, times, mount) if motion is not None else []
+    scales = None
+    if motion is not None and speed_scale is not None:  # a walk of zero: one scale for the log
+        scales = _scale_index(times, speed_scale[2] if speed_scale[1] > 0 else np.inf)
+    moving = keyframe_motion_factors(motion, times, mount, scales) if motion is not None else []
     if not moving:
-        mount = None
+        mount, scales = None, None
     elif mount is not None:  # the mounting rotation's prior, carried with the motion factors
         sigmas = np.broadcast_to(np.asarray(mount_sigma_rad, dtype=float), (3,))
         moving.append(gtsam.PriorFactorRot3(mount, gtsam.Rot3(), gtsam.noiseModel.Diagonal.Sigmas(sigmas)))
+    if scales is not None:  # the speed scales' prior and random walk, carried with the motion factors
+        moving.extend(_scale_factors(int(scales.max()) + 1, *speed_scale))
     for factor in moving:
         graph.add(factor)
 
@@ -247,6 +257,9 @@ def build_graph(
     for values in candidates:
         if mount is not None and not values.exists(mount):
             values.insert(mount, guess.atRot3(mount) if guess is not None and guess.exists(mount) else gtsam.Rot3())
+        for j in range(0 if scales is None else int(scales.max()) + 1):
+            if not values.exists(S(j)):
+                values.insert(S(j), guess.atVector(S(j)) if guess is not None and guess.exists(S(j)) else np.ones(1))
         check_values(graph, values)
     init_graph = graph
     if init_loss != settings.gps_robust:  # the same graph with the initial guesses' GPS factors
@@ -315,6 +328,10 @@ def _with_bias_states(
         out.insert(B(k), zero)
     if values.exists(M(0)):  # the motion factors' mounting rotation
         out.insert(M(0), values.atRot3(M(0)))
+    j = 0
+    while values.exists(S(j)):  # and their speed scales
+        out.insert(S(j), values.atVector(S(j)))
+        j += 1
     check_values(graph, out)
     return graph, out
 
@@ -357,14 +374,31 @@ def split_motion_factors(graph: gtsam.NonlinearFactorGraph) -> tuple[gtsam.Nonli
     return rest, motion
 
 
-def keyframe_motion_factors(motion: BodyVelocities, times: np.ndarray, mount_key: int | None = None) -> list:
-    """A ``MotionFactor`` on (X(k), V(k)[, ``mount_key``]) for every keyframe time inside ``motion``'s span
-    (interpolated)."""
+def keyframe_motion_factors(
+    motion: BodyVelocities, times: np.ndarray, mount_key: int | None = None, scales: np.ndarray | None = None
+) -> list:
+    """A ``MotionFactor`` on (X(k), V(k)[, ``mount_key``][, S(scales[k])]) for every keyframe time inside
+    ``motion``'s span (interpolated)."""
     vel, var, inside = motion.at(times)
     keys = np.flatnonzero(inside)
     if len(keys) == 0:
         log.warning("no keyframe lies inside the motion model's time span: no motion factor")
-    return motion_factors(vel[keys], var[keys], X, V, keys=keys, mount_key=mount_key)
+    scale_keys = None if scales is None else [S(int(j)) for j in scales[keys]]
+    return motion_factors(vel[keys], var[keys], X, V, keys=keys, mount_key=mount_key, scale_keys=scale_keys)
+
+
+def _scale_index(times: np.ndarray, interval_s: float) -> np.ndarray:
+    """(K,) the speed-scale state of each keyframe: its interval of ``interval_s`` from the first keyframe."""
+    return np.floor((times - times[0]) / interval_s).astype(int)
+
+
+def _scale_factors(count: int, sigma: float, walk: float, interval_s: float) -> list:
+    """The prior at 1 on S(0) (``sigma``) and the random walk S(j) -> S(j + 1) (``walk`` per sqrt(s) over
+    ``interval_s``)."""
+    out = [gtsam.PriorFactorVector(S(0), np.ones(1), gtsam.noiseModel.Isotropic.Sigma(1, sigma))]
+    step = gtsam.noiseModel.Isotropic.Sigma(1, walk * np.sqrt(interval_s)) if count > 1 else None
+    out.extend(gtsam.BetweenFactorVector(S(j), S(j + 1), np.zeros(1), step) for j in range(count - 1))
+    return out
 
 
 def trajectory_of(values: gtsam.Values, times: np.ndarray, marginals: gtsam.Marginals | None = None) -> Trajectory:

@@ -143,11 +143,16 @@ class OnlineFusion:
                 f"OnlineFusion: imu_gaps {config.imu_gaps!r} is batch only (airimu fuse without --online); a stream "
                 "integrates a gap with the sample before it held: set imu_gaps: hold"
             )
-        if motion_model is not None and config.motion.mount_sigma_rad is not None:
+        if config.imu_delay_s:
             raise InputError(
-                "OnlineFusion: motion.mount_sigma_rad (a mounting-rotation state) is batch only (airimu fuse without "
-                "--online); set it to null"
+                "OnlineFusion: imu_delay_s is batch only (airimu fuse without --online); a stream stamps its samples "
+                "itself: give add_imu the times less the delay"
             )
+        for name, what in (("mount_sigma_rad", "a mounting-rotation state"), ("scale_sigma", "speed-scale states")):
+            if motion_model is not None and getattr(config.motion, name) is not None:
+                raise InputError(
+                    f"OnlineFusion: motion.{name} ({what}) is batch only (airimu fuse without --online); set it to null"
+                )
         self._model, self._keyframe_s, self._lag_s = model, online.keyframe_s, online.lag_s
         self._motion, self._motion_scale = motion_model, np.asarray(config.motion.cov_scale, dtype=float)
         self._speed_limit = config.motion.speed_limit_m_s(motion_model) if motion_model is not None else None

@@ -51,7 +51,7 @@ def solve_export(
     settings, bias = config.graph, config.bias_states
     graph, values = build_graph(
         export, fixes, settings, initial_state, bias=bias, motion=motion, guess=guess, still=still,
-        mount_sigma_rad=config.motion.mount_sigma_rad,
+        mount_sigma_rad=config.motion.mount_sigma_rad, speed_scale=config.motion.speed_scale(),
     )  # fmt: skip
     if bias is None or settings.backend != "gtsam":
         solution = solve(graph, values, export.keyframe_t, settings)

@@ -36,7 +36,7 @@ def shared_data_dir() -> Path:
     return path
 
 
-_VALUE_AT = {"x": "atPose3", "v": "atVector", "b": "atConstantBias", "m": "atRot3"}  # by key character (X, V, B, M)
+_VALUE_AT = {"x": "atPose3", "v": "atVector", "b": "atConstantBias", "m": "atRot3", "s": "atVector"}  # (X, V, B, M, S)
 
 
 def error_jacobian(factor: gtsam.NonlinearFactor, values: gtsam.Values, key: int, step: float = JACOBIAN_STEP):

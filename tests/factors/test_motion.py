@@ -6,7 +6,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 import pytest
-from gtsam.symbol_shorthand import B, L, M, V, X
+from gtsam.symbol_shorthand import B, L, M, S, V, X
 
 from airimu_core.errors import GraphError, InputError
 from factors.motion import MotionFactor, MotionTerms, motion_factors, solve_with_python_factors
@@ -64,6 +64,78 @@ def test_mounted_jacobians_equal_numerical_derivatives(seed):
         numeric = error_jacobian(factor, values, key)
         assert np.abs(analytic - numeric).max() < 1e-8 * max(1.0, np.abs(numeric).max()), key
     assert np.abs(jacobians[0][:, 3:]).max() == 0.0
+
+
+@pytest.mark.parametrize("seed", range(5))
+@pytest.mark.parametrize("mounted", [False, True])
+def test_scaled_jacobians_equal_numerical_derivatives(seed, mounted):
+    """With a speed scale s (and a mount M): error [M^T] R^T v - s v_body, every Jacobian against central
+    differences in float64; d e / d s = -v_body."""
+    rng = np.random.default_rng(seed)
+    values = random_state(rng)
+    values.insert(S(3), np.array([rng.uniform(0.5, 1.5)]))
+    mount = M(0) if mounted else None
+    if mounted:
+        values.insert(M(0), gtsam.Rot3.Expmap(rng.normal(size=3) * 0.3))
+    factor = MotionFactor(X(0), V(0), rng.normal(size=3), random_cov(rng), mount_key=mount, scale_key=S(3))
+    keys = [X(0), V(0), *([M(0)] if mounted else []), S(3)]
+    assert list(factor.keys()) == keys
+    jacobians = [np.zeros((3, 6)), np.zeros((3, 3)), *([np.zeros((3, 3))] if mounted else []), np.zeros((3, 1))]
+    error = factor._evaluate(factor, values, jacobians)
+    r = values.atPose3(X(0)).rotation().matrix()
+    m = values.atRot3(M(0)).matrix() if mounted else np.eye(3)
+    s = values.atVector(S(3))[0]
+    np.testing.assert_allclose(error, m.T @ r.T @ values.atVector(V(0)) - s * factor.v_body, atol=1e-12)
+    for analytic, key in zip(jacobians, keys, strict=True):
+        numeric = error_jacobian(factor, values, key)
+        assert np.abs(analytic - numeric).max() < 1e-8 * max(1.0, np.abs(numeric).max()), key
+    np.testing.assert_allclose(jacobians[-1][:, 0], -factor.v_body, atol=0)
+    assert factor._evaluate(factor, values, None) == pytest.approx(error, abs=1e-14)
+
+
+def test_a_unit_scale_is_the_factor_without_one():
+    rng = np.random.default_rng(4)
+    values = random_state(rng)
+    values.insert(S(0), np.ones(1))
+    cov, v_body = random_cov(rng), rng.normal(size=3)
+    plain, scaled = MotionFactor(X(0), V(0), v_body, cov), MotionFactor(X(0), V(0), v_body, cov, scale_key=S(0))
+    assert scaled.error(values) == pytest.approx(plain.error(values), rel=1e-14)
+    values.update(S(0), np.array([1.1]))
+    assert scaled.error(values) != pytest.approx(plain.error(values), rel=1e-3)
+
+
+def test_scaled_motion_terms_equal_the_factors():
+    """MotionTerms with speed scales (two factors per scale key, the 's' character also naming a Pose3 once):
+    the factors' error and whitened linearisation."""
+    rng = np.random.default_rng(22)
+    keyframes = 6
+    values = gtsam.Values()
+    for k in range(keyframes):
+        values.insert(X(k), gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3)), rng.normal(size=3)))
+        values.insert(V(k), rng.normal(size=3) * 3)
+    for j in range(keyframes // 2):
+        values.insert(S(j), np.array([rng.uniform(0.8, 1.2)]))
+    scale_keys = [S(k // 2) for k in range(keyframes)]
+    made = motion_factors(
+        rng.normal(size=(keyframes, 3)), rng.uniform(1e-3, 0.1, (keyframes, 3)), scale_keys=scale_keys
+    )
+    terms = MotionTerms(made)
+    for extra_pose in (False, True):
+        if extra_pose:  # read one by one
+            values.insert(S(50), gtsam.Pose3())
+        assert terms.error(values) == pytest.approx(sum(f.error(values) for f in made), rel=1e-12)
+        linear = terms.linearize(values)
+        for k, factor in enumerate(made):
+            ours, theirs = linear.at(k), factor.linearize(values)
+            assert list(ours.keys()) == list(theirs.keys()) == [X(k), V(k), S(k // 2)]
+            expected = theirs.augmentedInformation()
+            np.testing.assert_allclose(ours.augmentedInformation(), expected, atol=1e-9 * np.abs(expected).max())
+    with pytest.raises(GraphError, match="a speed scale or none"):
+        MotionTerms([*made, MotionFactor(X(0), V(0), np.zeros(3), np.ones(3))])
+    with pytest.raises(GraphError, match="a speed scale or none"):
+        MotionTerms([MotionFactor(X(0), V(0), np.zeros(3), np.ones(3), mount_key=M(0), scale_key=S(0))])
+    with pytest.raises(InputError, match="scale_keys must be 6 keys"):
+        motion_factors(np.zeros((keyframes, 3)), np.ones((keyframes, 3)), scale_keys=scale_keys[:-1])
 
 
 def test_an_identity_mount_is_the_factor_without_one():

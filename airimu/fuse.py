@@ -34,7 +34,7 @@ import numpy as np
 
 from airimu_core.errors import ConfigError, DataError, InputError
 from airimu_core.motion import BodyVelocities
-from airimu_core.sequence import GPS_SIGMA_UNKNOWN_M, GpsFixes, ImuSequence
+from airimu_core.sequence import GPS_SIGMA_UNKNOWN_M, GpsFixes, ImuSequence, read_later
 from factors.noise import noise_mismatch
 from fusion.config import FuseConfig, MotionSettings
 from fusion.graph import Solution, Trajectory
@@ -219,9 +219,6 @@ def fuse(
         if bridged is not sequence:
             log.info("%s: the IMU's gaps filled with %d samples (imu_gaps)", where, len(bridged.t) - len(sequence.t))
             sequence = bridged
-    if config.imu_delay_s:
-        log.info("%s: the IMU's samples moved %.1f ms earlier (imu_delay_s)", where, 1e3 * config.imu_delay_s)
-        sequence = sequence.imu_delay_removed(config.imu_delay_s)
     fixes = gps if gps is not None else sequence.gps
     if model is not None and not config.noise_is_default:
         raise InputError(
@@ -271,6 +268,9 @@ def fuse(
             )
         gyro_cov, acc_cov = (torch.full_like(gyro, s**2) for s in config.noise_density)
         correction = Correction(gyro + d_gyro, acc, d_gyro, zero, gyro_cov, acc_cov)
+    if config.imu_delay_s:  # the preintegration's samples on the GPS's clock; the networks read them as recorded
+        log.info("%s: the IMU's samples integrated %.1f ms earlier (imu_delay_s)", where, 1e3 * config.imu_delay_s)
+        correction = _delay_removed(correction, sequence.t, config.imu_delay_s)
     result = _solve(sequence, fixes, correction, config, motion_model, initial_state, still=still)
     result = dataclasses.replace(result, still=still)
     if model is None and not config.noise_is_default:
@@ -322,6 +322,18 @@ def _solve(sequence, fixes, correction, config, motion_model, initial_state, end
         check = partial(solve_with, result) if k == passes - 1 else None
         result = solve_with(result, motion_on(result, motion_model, config.motion, check))
     return result
+
+
+def _delay_removed(correction: Correction, t: np.ndarray, delay_s: float) -> Correction:
+    """``correction`` with its corrected gyro and acc read ``delay_s`` later (``read_later``): what the
+    preintegration integrates for an IMU that late (``FuseConfig.imu_delay_s``). The networks (the AirIMU model, the
+    motion model) read the samples as recorded, the timing they were trained on."""
+    import torch
+
+    def later(x: torch.Tensor) -> torch.Tensor:
+        return torch.as_tensor(read_later(t, x.detach().cpu().numpy(), delay_s), dtype=x.dtype)
+
+    return dataclasses.replace(correction, gyro=later(correction.gyro), acc=later(correction.acc))
 
 
 def _start_state(sequence: ImuSequence, start):

@@ -111,6 +111,12 @@ class GpsFixes:
         return GpsFixes(self.t, self.pos, float(sigma_m))
 
 
+def read_later(t: np.ndarray, values: np.ndarray, delay_s: float) -> np.ndarray:
+    """(N, C) ``values`` (N, C) sampled at ``t`` (N,), read at ``t + delay_s`` instead: linear between samples, held
+    past the ends."""
+    return np.column_stack([np.interp(t + delay_s, t, values[:, i]) for i in range(values.shape[1])])
+
+
 @dataclass(frozen=True, eq=False)
 class ImuSequence:
     """One IMU recording with optional ground truth and GPS. See the module docstring for conventions.
@@ -237,13 +243,8 @@ class ImuSequence:
         held past the ends). Times, ground truth and fixes are unchanged; the same object for a delay of 0."""
         if delay_s == 0:
             return self
-
-        def moved(values: np.ndarray) -> np.ndarray:
-            return np.column_stack([np.interp(self.t + delay_s, self.t, values[:, i]) for i in range(3)])
-
-        return ImuSequence(
-            self.name, self.t, moved(self.gyro), moved(self.acc), self.gravity, self.gt, self.gps, self.source
-        )
+        gyro, acc = read_later(self.t, self.gyro, delay_s), read_later(self.t, self.acc, delay_s)
+        return ImuSequence(self.name, self.t, gyro, acc, self.gravity, self.gt, self.gps, self.source)
 
     def _samples(self, cut: slice, name: str) -> ImuSequence:
         """The samples ``cut`` with their ground truth and the GPS fixes inside their time span."""

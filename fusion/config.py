@@ -266,10 +266,11 @@ class FuseConfig:
     - ``imu_gaps``: ``"hold"``: a gap in the IMU samples (a step over 5 median steps) is integrated with the sample
       before it held (GTSAM's ``integrateMeasurement(acc, gyro, dt)``); ``"interpolate"``: filled with samples linear
       between the two either side (``ImuSequence.bridge_gaps``: the trapezoidal rule over the gap; batch only).
-    - ``imu_delay_s``: how late (s) the IMU's samples are against the clock of the GPS and the start state: each
-      sample is replaced by the reading ``imu_delay_s`` later (``ImuSequence.imu_delay_removed``; batch only).
-      KITTI's OXTS stream lags its own navigation solution by 50-60 ms (``measure_imu_delay`` on its training
-      drives: BENCHMARKS.md); 0: none.
+    - ``imu_delay_s``: how late (s) the IMU's samples are against the clock of the GPS and the start state: the
+      preintegration reads each sample ``imu_delay_s`` later (``airimu_core.sequence.read_later``), the networks
+      read them as recorded (their training's timing); batch only. KITTI's OXTS gyro lags the same packets'
+      navigation solution by ~50 ms (``learned_imu.evaluation.imu_delay.measure_imu_delay`` on its training drives:
+      BENCHMARKS.md); 0: none.
     - ``graph``: robust loss, lever arm, priors and the solver; ``online``: the smoother of ``OnlineFusion``;
       ``motion``: the learned motion factors, used when a motion model is given (``MotionSettings``).
     """

@@ -1,5 +1,5 @@
 """An IMU late against its ground truth's clock: ``measure_imu_delay`` finds the delay, ``FuseConfig.imu_delay_s``
-(``ImuSequence.imu_delay_removed``) takes it out; on KITTI's OXTS stream it is ~50 ms."""
+takes it out of the preintegration (``read_later``, as ``ImuSequence.imu_delay_removed``); KITTI's OXTS: ~50 ms."""
 
 from __future__ import annotations
 

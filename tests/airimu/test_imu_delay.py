@@ -111,3 +111,10 @@ def test_kittis_oxts_stream_is_about_fifty_ms_late(shared_data):
     found = measure_imu_delay([seq])
     assert 0.045 <= found.delay_s <= 0.065, found.delay_s
     assert found.sequences[0][2] < 0.6 * found.sequences[0][3]  # the squared rate error: 8.6e-4 -> 4.5e-4
+
+
+def test_euroc_imu_is_on_time(shared_data):
+    """EuRoC V1_02_medium (200 Hz, the IMU and the Vicon on one clock): half a sample step, 2.5 ms, as for an IMU
+    without delay (``test_measure_imu_delay_finds_a_known_delay``)."""
+    found = measure_imu_delay([read_sequence("euroc", shared_data / "euroc/V1_02_medium")])
+    assert found.delay_s == pytest.approx(0.0025, abs=1e-3)

@@ -23,6 +23,7 @@ AirIO's EKF on the same flights, its table: 2.308 / 3.05 / 4.206 m ATE.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -89,13 +90,36 @@ def main() -> None:
     parser.add_argument("--motion", required=True, help="the motion model")
     parser.add_argument("--config", default="configs/euroc.yaml", help="its data.evaluate are the test flights")
     parser.add_argument("--json", help="write the rows here")
+    parser.add_argument(
+        "--scale",
+        type=float,
+        nargs=3,
+        metavar=("SIGMA", "WALK", "INTERVAL_S"),
+        help="motion.scale_sigma, scale_walk (per sqrt(s)), scale_interval_s: speed-scale states",
+    )
+    parser.add_argument(
+        "--start-sigmas",
+        type=float,
+        nargs=2,
+        metavar=("ROT_RAD", "VEL_M_S"),
+        help="the prior on the ground-truth start (graph.prior_rot_sigma_rad, prior_vel_sigma_m_s; default the fuse "
+        "config's 0.01 rad, 0.1 m/s)",
+    )
     parser.add_argument("--keyframe-s", type=float, default=MotionSettings.keyframe_s, help="motion.keyframe_s")
     parser.add_argument("--passes", type=int, default=MotionSettings.passes, help="motion.passes")
     parser.add_argument(
         "--cov-scale", type=float, nargs="+", default=[MotionSettings.cov_scale], help="motion.cov_scale: 1 or 3"
     )
     args = parser.parse_args()
-    fuse_config = FuseConfig(motion=MotionSettings(args.keyframe_s, args.passes, tuple(args.cov_scale)))
+    motion = MotionSettings(args.keyframe_s, args.passes, tuple(args.cov_scale))
+    if args.scale:
+        sigma, walk, interval = args.scale
+        motion = dataclasses.replace(motion, scale_sigma=sigma, scale_walk=walk, scale_interval_s=interval)
+    fuse_config = FuseConfig(motion=motion)
+    if args.start_sigmas:
+        rot, vel = args.start_sigmas
+        graph = dataclasses.replace(fuse_config.graph, prior_rot_sigma_rad=rot, prior_vel_sigma_m_s=vel)
+        fuse_config = dataclasses.replace(fuse_config, graph=graph)
     model, _ = model_from_checkpoint(args.checkpoint)
     net, _ = motion_from_checkpoint(args.motion)
     config = load_config(args.config)

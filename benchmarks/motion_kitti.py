@@ -34,6 +34,11 @@ motion factor (``airimu_motion``), in these tables and ``--gtsam-drive``'s (fold
 ``--online``: the motion row by ``fusion.online.OnlineFusion`` instead of the batch graph (``online_row``: a fixed-lag
 smoother, keyframes every 0.18 s, the IMU's gaps held as a stream has them), to check what a live estimator gets.
 
+``--start-sigmas ROT VEL``: the prior on the ground-truth start (default the fuse config's 0.01 rad, 0.1 m/s; the
+reported LOO row: 1e-3 rad, 0.02 m/s, the ground truth's accuracy); ``--scale SIGMA WALK INTERVAL``: speed-scale
+states on the motion factors (``motion.scale_sigma``); ``--imu-delay S``: ``FuseConfig.imu_delay_s``;
+``--measure-delay``: only measure the IMU's delay on the LOO template's training drives that are no sequence.
+
 ``--velocity``: instead of the graphs, the motion model itself on each sequence, fed the ground-truth attitude: per
 body axis (forward, left, up) its velocity RMSE and mean error (m/s), its median predicted sigma, its NEES (the mean
 of error^2 / predicted variance: about 1 when the variances fit) and the correlation of its velocity with the truth's.

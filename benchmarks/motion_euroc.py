@@ -23,8 +23,8 @@ AirIO's EKF on the same flights, its table: 2.308 / 3.05 / 4.206 m ATE.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -40,6 +40,9 @@ from learned_imu.network.checkpoint import model_from_checkpoint, motion_from_ch
 from learned_imu.network.inference import correct
 from learned_imu.network.motion import block_ends, motion_sequence, up_in_body
 from learned_imu.training.experiment import load_sequences
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from motion_kitti import add_start_and_scale_arguments, with_start_and_scale  # noqa: E402
 
 AIRIO_EKF_ATE_M = {"MH_04_difficult": 2.308, "V1_03_difficult": 3.05, "V2_02_medium": 4.206}
 RTE_WINDOW_S = 5.0
@@ -90,21 +93,7 @@ def main() -> None:
     parser.add_argument("--motion", required=True, help="the motion model")
     parser.add_argument("--config", default="configs/euroc.yaml", help="its data.evaluate are the test flights")
     parser.add_argument("--json", help="write the rows here")
-    parser.add_argument(
-        "--scale",
-        type=float,
-        nargs=3,
-        metavar=("SIGMA", "WALK", "INTERVAL_S"),
-        help="motion.scale_sigma, scale_walk (per sqrt(s)), scale_interval_s: speed-scale states",
-    )
-    parser.add_argument(
-        "--start-sigmas",
-        type=float,
-        nargs=2,
-        metavar=("ROT_RAD", "VEL_M_S"),
-        help="the prior on the ground-truth start (graph.prior_rot_sigma_rad, prior_vel_sigma_m_s; default the fuse "
-        "config's 0.01 rad, 0.1 m/s)",
-    )
+    add_start_and_scale_arguments(parser)
     parser.add_argument("--keyframe-s", type=float, default=MotionSettings.keyframe_s, help="motion.keyframe_s")
     parser.add_argument("--passes", type=int, default=MotionSettings.passes, help="motion.passes")
     parser.add_argument(
@@ -112,14 +101,7 @@ def main() -> None:
     )
     args = parser.parse_args()
     motion = MotionSettings(args.keyframe_s, args.passes, tuple(args.cov_scale))
-    if args.scale:
-        sigma, walk, interval = args.scale
-        motion = dataclasses.replace(motion, scale_sigma=sigma, scale_walk=walk, scale_interval_s=interval)
-    fuse_config = FuseConfig(motion=motion)
-    if args.start_sigmas:
-        rot, vel = args.start_sigmas
-        graph = dataclasses.replace(fuse_config.graph, prior_rot_sigma_rad=rot, prior_vel_sigma_m_s=vel)
-        fuse_config = dataclasses.replace(fuse_config, graph=graph)
+    fuse_config = with_start_and_scale(FuseConfig(motion=motion), args)
     model, _ = model_from_checkpoint(args.checkpoint)
     net, _ = motion_from_checkpoint(args.motion)
     config = load_config(args.config)

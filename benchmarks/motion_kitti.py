@@ -277,6 +277,39 @@ def gtsam_validation_rows(net, fold_config, motion: MotionSettings) -> list[dict
     return rows
 
 
+def add_start_and_scale_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--scale`` and ``--start-sigmas`` (this script's and ``motion_euroc.py``'s; ``with_start_and_scale``)."""
+    parser.add_argument(
+        "--scale",
+        type=float,
+        nargs=3,
+        metavar=("SIGMA", "WALK", "INTERVAL_S"),
+        help="motion.scale_sigma, scale_walk (per sqrt(s)), scale_interval_s: speed-scale states",
+    )
+    parser.add_argument(
+        "--start-sigmas",
+        type=float,
+        nargs=2,
+        metavar=("ROT_RAD", "VEL_M_S"),
+        help="the prior on the ground-truth start (graph.prior_rot_sigma_rad, prior_vel_sigma_m_s; default the "
+        "fuse config's 0.01 rad, 0.1 m/s; AI-IMU's KITTI filter starts at 1e-3 rad, 0.316 m/s: cov_Rot0 1e-6, "
+        "cov_v0 1e-1)",
+    )
+
+
+def with_start_and_scale(config: FuseConfig, args: argparse.Namespace) -> FuseConfig:
+    """``config`` with ``--scale``'s speed-scale states and ``--start-sigmas``' start prior, where given."""
+    if args.scale:
+        sigma, walk, interval = args.scale
+        motion = dataclasses.replace(config.motion, scale_sigma=sigma, scale_walk=walk, scale_interval_s=interval)
+        config = dataclasses.replace(config, motion=motion)
+    if args.start_sigmas:
+        rot, vel = args.start_sigmas
+        graph = dataclasses.replace(config.graph, prior_rot_sigma_rad=rot, prior_vel_sigma_m_s=vel)
+        config = dataclasses.replace(config, graph=graph)
+    return config
+
+
 def measured_delay() -> dict:
     """``--measure-delay``: the IMU's delay against the ground truth, pooled over the LOO template's training drives
     that are none of the ten sequences (so no sequence's score chose it), and each drive's own."""
@@ -314,22 +347,7 @@ def main() -> None:
     parser.add_argument(
         "--mount-sigma", type=float, nargs="+", help="motion.mount_sigma_rad: a mounting-rotation state (1 or 3, rad)"
     )
-    parser.add_argument(
-        "--scale",
-        type=float,
-        nargs=3,
-        metavar=("SIGMA", "WALK", "INTERVAL_S"),
-        help="motion.scale_sigma, scale_walk (per sqrt(s)), scale_interval_s: speed-scale states",
-    )
-    parser.add_argument(
-        "--start-sigmas",
-        type=float,
-        nargs=2,
-        metavar=("ROT_RAD", "VEL_M_S"),
-        help="the prior on the ground-truth start (graph.prior_rot_sigma_rad, prior_vel_sigma_m_s; default the "
-        "fuse config's 0.01 rad, 0.1 m/s; AI-IMU's KITTI filter starts at 1e-3 rad, 0.316 m/s: cov_Rot0 1e-6, "
-        "cov_v0 1e-1)",
-    )
+    add_start_and_scale_arguments(parser)
     parser.add_argument("--imu-delay", type=float, default=0.0, help="FuseConfig.imu_delay_s of every row (s)")
     parser.add_argument(
         "--measure-delay",
@@ -374,9 +392,6 @@ def main() -> None:
     logging.basicConfig(level=logging.ERROR)
     mount = None if args.mount_sigma is None else tuple(args.mount_sigma)
     motion = MotionSettings(args.keyframe_s, args.passes, tuple(args.cov_scale), mount, args.speed_envelope)
-    if args.scale:
-        sigma, walk, interval = args.scale
-        motion = dataclasses.replace(motion, scale_sigma=sigma, scale_walk=walk, scale_interval_s=interval)
     config = FuseConfig(
         gyro_noise_density=GTSAM_NOISE[0],
         acc_noise_density=GTSAM_NOISE[1],
@@ -386,10 +401,8 @@ def main() -> None:
         motion=motion,
         estimate_bias=args.estimate_bias,
     )
-    if args.start_sigmas:
-        rot, vel = args.start_sigmas
-        graph = dataclasses.replace(config.graph, prior_rot_sigma_rad=rot, prior_vel_sigma_m_s=vel)
-        config = dataclasses.replace(config, graph=graph)
+    config = with_start_and_scale(config, args)
+    motion = config.motion
     rows, outages = [], []
     if args.gtsam_drive:
         net = motion_from_checkpoint(dict(args.fold)["1"])[0]

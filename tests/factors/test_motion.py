@@ -20,6 +20,15 @@ def random_state(rng: np.random.Generator, k: int = 0) -> gtsam.Values:
     return values
 
 
+def random_keyframes(rng: np.random.Generator, count: int) -> gtsam.Values:
+    """Poses and velocities of keyframes 0 .. count-1 at random."""
+    values = gtsam.Values()
+    for k in range(count):
+        values.insert(X(k), gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3)), rng.normal(size=3)))
+        values.insert(V(k), rng.normal(size=3) * 3)
+    return values
+
+
 def random_cov(rng: np.random.Generator) -> np.ndarray:
     """A full 3x3 covariance with correlations, (m/s)^2."""
     a = rng.normal(size=(3, 3)) * 0.1
@@ -109,10 +118,7 @@ def test_scaled_motion_terms_equal_the_factors():
     the factors' error and whitened linearisation."""
     rng = np.random.default_rng(22)
     keyframes = 6
-    values = gtsam.Values()
-    for k in range(keyframes):
-        values.insert(X(k), gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3)), rng.normal(size=3)))
-        values.insert(V(k), rng.normal(size=3) * 3)
+    values = random_keyframes(rng, keyframes)
     for j in range(keyframes // 2):
         values.insert(S(j), np.array([rng.uniform(0.8, 1.2)]))
     scale_keys = [S(k // 2) for k in range(keyframes)]
@@ -283,10 +289,7 @@ def test_motion_terms_equal_the_factors(full):
 def test_mounted_motion_terms_equal_the_factors():
     rng = np.random.default_rng(21)
     keyframes = 5
-    values = gtsam.Values()
-    for k in range(keyframes):
-        values.insert(X(k), gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3)), rng.normal(size=3)))
-        values.insert(V(k), rng.normal(size=3) * 3)
+    values = random_keyframes(rng, keyframes)
     values.insert(M(0), gtsam.Rot3.Expmap([0.01, -0.02, 0.05]))
     made = motion_factors(rng.normal(size=(keyframes, 3)), rng.uniform(1e-3, 0.1, (keyframes, 3)), mount_key=M(0))
     terms = MotionTerms(made)

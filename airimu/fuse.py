@@ -92,6 +92,9 @@ class FusedSummary:
     # tilt_sigma_deg, and against the ground truth where there is one the tilt of its gravity (tilt_error_deg);
     # None without one (or with a model, which corrects the bias itself)
     still_start: dict | None = None
+    # the motion factors' speed-scale states (motion.scale_sigma), one per motion.scale_interval_s from the first
+    # keyframe, in time order: how much faster the estimate moves than the motion model reads; None without them
+    speed_scales: list | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -735,9 +738,21 @@ def write_outputs(result: Fused, folder: Path, reference: GpsFixes | None = None
         result.residuals["motion"].factors if "motion" in result.residuals else 0,
         initial_attitude_error(result),
         still_summary(result),
+        speed_scales(result.solution.values),
     )
     written.append(write_json_atomic(folder / "summary.json", dataclasses.asdict(summary)))
     return summary, written
+
+
+def speed_scales(values) -> list | None:
+    """``FusedSummary.speed_scales``: the values of the speed-scale states ``S(0)``, ``S(1)``, ... in ``values``, or
+    None when there are none."""
+    from gtsam.symbol_shorthand import S
+
+    out = []
+    while values.exists(S(len(out))):
+        out.append(float(values.atVector(S(len(out)))[0]))
+    return out or None
 
 
 def still_summary(result: Fused) -> dict | None:

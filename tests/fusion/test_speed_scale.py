@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from gtsam.symbol_shorthand import S
 
-from airimu.fuse import fuse
+from airimu.fuse import fuse, speed_scales
 from airimu_core.errors import ConfigError, InputError
 from airimu_core.motion import BodyVelocities
 from fusion.config import FuseConfig, MotionSettings
@@ -50,11 +50,12 @@ def solved(car, model, **scale):  # noqa: F811
     result = fuse(dataclasses.replace(car, gps=None), None, None, config, model, start="ground-truth")
     trajectory, values = result.solution.trajectory, result.solution.values
     end = float(np.linalg.norm(trajectory.pos[-1] - car.gt.pos[np.searchsorted(car.t, trajectory.t[-1])]))
-    scales, j = [], 0
-    while values.exists(S(j)):
-        scales.append(float(values.atVector(S(j))[0]))
-        j += 1
-    return end, np.array(scales)
+    scales = speed_scales(values)  # summary.json's
+    count = 0
+    while values.exists(S(count)):
+        count += 1
+    assert (scales is None) == (count == 0) and len(scales or []) == count
+    return end, np.array(scales or [])
 
 
 def test_a_scale_state_takes_up_a_model_that_reads_slow(car, monkeypatch):  # noqa: F811

@@ -37,7 +37,7 @@ from airimu_core.motion import BodyVelocities
 from airimu_core.sequence import GPS_SIGMA_UNKNOWN_M, GpsFixes, ImuSequence, read_later
 from factors.noise import noise_mismatch
 from fusion.config import FuseConfig, MotionSettings
-from fusion.graph import Solution, Trajectory
+from fusion.graph import Solution, Trajectory, scale_keys
 from fusion.solve import solve_export
 from fusion.still import StillStart, still_start
 from learned_imu.datasets._tilt import GYRO_READINGS, check_gyro_unit, reading_fixes
@@ -747,12 +747,7 @@ def write_outputs(result: Fused, folder: Path, reference: GpsFixes | None = None
 def speed_scales(values) -> list | None:
     """``FusedSummary.speed_scales``: the values of the speed-scale states ``S(0)``, ``S(1)``, ... in ``values``, or
     None when there are none."""
-    from gtsam.symbol_shorthand import S
-
-    out = []
-    while values.exists(S(len(out))):
-        out.append(float(values.atVector(S(len(out)))[0]))
-    return out or None
+    return [float(values.atVector(key)[0]) for key in scale_keys(values)] or None
 
 
 def still_summary(result: Fused) -> dict | None:

@@ -157,13 +157,13 @@ class MotionTerms:
         if len(mounts) > 1:
             raise GraphError(f"MotionTerms: the factors must share one mount key (or none), got {len(mounts)}")
         self.mount_key = mounts.pop() if mounts else None
-        scaled = {f.scale_key is not None for f in factors}
-        if len(scaled) > 1 or (self.mount_key is not None and True in scaled):
+        scaled = [f.scale_key is not None for f in factors]
+        if (any(scaled) and not all(scaled)) or (self.mount_key is not None and any(scaled)):
             raise GraphError(
                 "MotionTerms: the factors must all have a speed scale or none, and not both a scale and a mount "
                 "rotation (a JacobianFactor of four keys); add such factors to the graph instead"
             )
-        self.scale_keys = np.array([f.scale_key for f in factors], dtype=np.uint64) if True in scaled else None
+        self.scale_keys = np.array([f.scale_key for f in factors], dtype=np.uint64) if any(scaled) else None
         self.pose_keys = np.array([f.pose_key for f in factors], dtype=np.uint64)
         self.vel_keys = np.array([f.vel_key for f in factors], dtype=np.uint64)
         self.v_body = np.array([f.v_body for f in factors]).reshape(-1, 3)

@@ -328,10 +328,8 @@ def _with_bias_states(
         out.insert(B(k), zero)
     if values.exists(M(0)):  # the motion factors' mounting rotation
         out.insert(M(0), values.atRot3(M(0)))
-    j = 0
-    while values.exists(S(j)):  # and their speed scales
-        out.insert(S(j), values.atVector(S(j)))
-        j += 1
+    for key in scale_keys(values):  # and their speed scales
+        out.insert(key, values.atVector(key))
     check_values(graph, out)
     return graph, out
 
@@ -385,6 +383,14 @@ def keyframe_motion_factors(
         log.warning("no keyframe lies inside the motion model's time span: no motion factor")
     scale_keys = None if scales is None else [S(int(j)) for j in scales[keys]]
     return motion_factors(vel[keys], var[keys], X, V, keys=keys, mount_key=mount_key, scale_keys=scale_keys)
+
+
+def scale_keys(values: gtsam.Values) -> list[int]:
+    """The speed-scale keys ``S(0)``, ``S(1)``, ... that ``values`` holds, in time order."""
+    keys = []
+    while values.exists(S(len(keys))):
+        keys.append(S(len(keys)))
+    return keys
 
 
 def _scale_index(times: np.ndarray, interval_s: float) -> np.ndarray:

@@ -47,18 +47,18 @@ def measure_imu_delay(sequences: list[ImuSequence], max_s: float = 0.15) -> ImuD
         return np.array([[_squared_error(seq, *p, d) for d in delays] for seq, p in zip(sequences, pairs, strict=True)])
 
     coarse = np.arange(-max_s, max_s + COARSE_S / 2, COARSE_S)
-    pooled = scores(coarse).sum(axis=0)
-    centre = coarse[int(np.argmin(pooled))]
+    coarse_scores = scores(coarse)
+    centre = coarse[int(np.argmin(coarse_scores.sum(axis=0)))]
     fine = centre + np.arange(-COARSE_S, COARSE_S + FINE_S / 2, FINE_S)
     fine_scores = scores(fine)
-    delay = float(fine[int(np.argmin(fine_scores.sum(axis=0)))])
+    best = int(np.argmin(fine_scores.sum(axis=0)))
+    delay = float(fine[best])
+    at_zero = scores(np.zeros(1))[:, 0]
     rows = []
-    for seq, p, per in zip(sequences, pairs, scores(coarse), strict=True):
+    for i, (seq, p) in enumerate(zip(sequences, pairs, strict=True)):
         count = max(len(p[0]), 1)
-        rows.append(
-            (seq.name, float(coarse[int(np.argmin(per))]), _squared_error(seq, *p, delay) / count,
-             _squared_error(seq, *p, 0.0) / count)
-        )  # fmt: skip
+        own = float(coarse[int(np.argmin(coarse_scores[i]))])
+        rows.append((seq.name, own, float(fine_scores[i, best]) / count, float(at_zero[i]) / count))
     return ImuDelay(delay, tuple(rows))
 
 

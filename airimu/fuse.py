@@ -51,6 +51,7 @@ from learned_imu.export import (
     preintegration_export,
 )
 from learned_imu.network.model import Correction
+from learned_imu.network.rate import check_imu_delay
 
 UNCOVERED_WARNING_S = 30.0  # IMU time before the first or after the last fix that is worth a warning
 MODEL_REFUSAL_RATIO = 3.0  # a model leaving this many times more GPS motion unexplained than the raw IMU is refused
@@ -244,6 +245,8 @@ def fuse(
         fixes = sequence.gps
         _check_coverage(sequence, fixes, where, need=1 if initial_state is not None else 2)
         check_imu_units(sequence, fixes, where)
+    for network in (model, motion_model):
+        check_imu_delay(network, sequence, where)
     still = None
     if model is not None:
         correction = correct(model, sequence)

@@ -111,6 +111,9 @@ class GpsFixes:
         return GpsFixes(self.t, self.pos, float(sigma_m))
 
 
+MAX_IMU_DELAY_S = 0.5  # an IMU delay (s) larger than this is a unit mistake or a clock that needs fixing upstream
+
+
 def read_later(t: np.ndarray, values: np.ndarray, delay_s: float) -> np.ndarray:
     """(N, C) ``values`` (N, C) sampled at ``t`` (N,), read at ``t + delay_s`` instead: linear between samples, held
     past the ends."""
@@ -130,6 +133,8 @@ class ImuSequence:
         gt: ground truth at the N IMU times, or None.
         gps: GPS fixes, or None.
         source: where the sequence came from (a path, or ``"simulator"``), used in error messages.
+        imu_delay_s: how much later than recorded the gyro and acc are read, s (``imu_delay_removed``; the readers'
+            ``imu_delay_s`` option): 0 for the samples as recorded.
     """
 
     name: str
@@ -140,6 +145,7 @@ class ImuSequence:
     gt: GroundTruth | None = None
     gps: GpsFixes | None = None
     source: str = ""
+    imu_delay_s: float = 0.0
 
     def __post_init__(self):
         src = self.source or self.name
@@ -235,7 +241,8 @@ class ImuSequence:
             valid = np.zeros(len(t), dtype=bool)
             valid[original] = self.gt.valid
             gt = GroundTruth(self.gt.rot[before], linear(self.gt.pos), linear(self.gt.vel), valid)
-        return ImuSequence(self.name, t, linear(self.gyro), linear(self.acc), self.gravity, gt, self.gps, self.source)
+        gyro, acc = linear(self.gyro), linear(self.acc)
+        return ImuSequence(self.name, t, gyro, acc, self.gravity, gt, self.gps, self.source, self.imu_delay_s)
 
     def imu_delay_removed(self, delay_s: float) -> ImuSequence:
         """The sequence with its IMU ``delay_s`` seconds late against its clock (the ground truth's and the GPS's):
@@ -244,7 +251,8 @@ class ImuSequence:
         if delay_s == 0:
             return self
         gyro, acc = read_later(self.t, self.gyro, delay_s), read_later(self.t, self.acc, delay_s)
-        return ImuSequence(self.name, self.t, gyro, acc, self.gravity, self.gt, self.gps, self.source)
+        delayed = self.imu_delay_s + delay_s
+        return ImuSequence(self.name, self.t, gyro, acc, self.gravity, self.gt, self.gps, self.source, delayed)
 
     def _samples(self, cut: slice, name: str) -> ImuSequence:
         """The samples ``cut`` with their ground truth and the GPS fixes inside their time span."""
@@ -253,7 +261,8 @@ class ImuSequence:
             gt = GroundTruth(self.gt.rot[cut], self.gt.pos[cut], self.gt.vel[cut], self.gt.valid[cut])
         t = self.t[cut]
         gps = None if self.gps is None else self.gps[(self.gps.t >= t[0]) & (self.gps.t <= t[-1])]
-        return ImuSequence(name, t, self.gyro[cut], self.acc[cut], self.gravity, gt, gps, self.source)
+        gyro, acc = self.gyro[cut], self.acc[cut]
+        return ImuSequence(name, t, gyro, acc, self.gravity, gt, gps, self.source, self.imu_delay_s)
 
     @property
     def dt(self) -> np.ndarray:

@@ -20,7 +20,7 @@ import numpy as np
 
 from airimu_core.config import check_noise_density, config_path, from_dict, read_yaml
 from airimu_core.errors import ConfigError
-from airimu_core.sequence import GPS_SIGMA_UNKNOWN_M
+from airimu_core.sequence import GPS_SIGMA_UNKNOWN_M, MAX_IMU_DELAY_S
 
 
 @dataclass(frozen=True)
@@ -247,7 +247,6 @@ def _one_or_three(value, allowed: Callable[[float], bool]) -> float | tuple[floa
 
 
 IMU_GAPS = ("hold", "interpolate")  # FuseConfig.imu_gaps
-MAX_IMU_DELAY_S = 0.5  # FuseConfig.imu_delay_s: a larger one is a unit mistake or a clock that needs fixing upstream
 
 
 @dataclass(frozen=True)

@@ -87,6 +87,13 @@ class DataConfig:
     evaluate: tuple[SequenceConfig, ...] = ()  # default: the validation sequences
     root: str = "."
 
+    @property
+    def imu_delay_s(self) -> float | None:
+        """The IMU delay (s) every training sequence is read with (the readers' ``imu_delay_s`` option; 0 where
+        none is given); None where they differ."""
+        delays = {float(spec.options.get("imu_delay_s", 0.0)) for spec in self.train}
+        return delays.pop() if len(delays) == 1 else None
+
 
 @dataclass(frozen=True)
 class ModelConfig:

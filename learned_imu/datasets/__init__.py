@@ -17,7 +17,7 @@ from collections.abc import Callable
 from dataclasses import fields
 from pathlib import Path
 
-from airimu_core.sequence import ImuSequence
+from airimu_core.sequence import MAX_IMU_DELAY_S, ImuSequence
 from airimu_core.table import check_input_size
 from learned_imu.datasets import broad, kitti, kitti_raw
 from learned_imu.datasets._assemble import ReadChecks
@@ -42,6 +42,9 @@ READERS: dict[str, Callable[..., ImuSequence]] = {
 UNUSED_CHECKS = {"kitti": kitti.UNUSED_CHECKS, "kitti_raw": kitti_raw.UNUSED_CHECKS, "broad": broad.UNUSED_CHECKS}
 
 
+# every reader's option: how late (s) the IMU's samples are against the clock of its ground truth (and GPS); the
+# sequence is read with them ``imu_delay_s`` later (``ImuSequence.imu_delay_removed``), for training and fusion alike
+IMU_DELAY_OPTION = "imu_delay_s"
 SPLIT = "split"  # a config's on_gap: read with "keep", then ImuSequence.split_at_gaps()
 SIMULATOR = "simulator"  # a config's sequence made by learned_imu.datasets.simulator.simulate instead of a reader
 # Reader and simulator options are a handful of scalars and short lists: anything far larger is a mistake or an
@@ -56,7 +59,9 @@ def read_sequence(dataset: str, path: str | Path | None = None, **options) -> Im
     ``options`` are the reader's keyword arguments (checked by ``check_options``), the fields of its ``checks``
     record given flat (``on_gap="keep"``) and gathered into a ``ReadChecks`` here; ``path`` may be None only for
     ``"kitti"`` (gtsam's copy). Splitting at gaps is a step of its own: ``on_gap="keep"``, then
-    ``ImuSequence.split_at_gaps()`` (a config's ``on_gap: split`` does both). A file the reader cannot parse at all
+    ``ImuSequence.split_at_gaps()`` (a config's ``on_gap: split`` does both). Every reader also takes
+    ``imu_delay_s`` (``IMU_DELAY_OPTION``): the IMU's samples read that much later, on the ground truth's clock
+    (linear between samples, across a gap too: ``ImuSequence.imu_delay_removed``). A file the reader cannot parse at all
     (zero bytes, random bytes, another format, no permission) is a ``DataError`` naming it; the parser's own
     exception is its ``__cause__``.
     """
@@ -67,19 +72,21 @@ def read_sequence(dataset: str, path: str | Path | None = None, **options) -> Im
     if path is None and dataset != "kitti":
         raise InputError(f"dataset {dataset!r} needs a path")
     options = check_options(dataset, options, "reader option")
+    delay_s = options.pop(IMU_DELAY_OPTION, 0.0)
     checks = ReadChecks(**{f.name: options.pop(f.name) for f in fields(ReadChecks) if f.name in options})
     if path is not None and not Path(path).exists():
         raise DataError(path, "path", "no such file or folder")
     if path is not None and Path(path).is_file():
         check_input_size(Path(path))
     try:
-        return READERS[dataset](path, checks=checks, **options)
+        sequence = READERS[dataset](path, checks=checks, **options)
     except (AirImuError, MemoryError, KeyboardInterrupt):
         raise
     except Exception as error:  # the parsers' own errors (scipy, h5py, rosbags, UnicodeDecodeError, OSError...)
         text = getattr(error, "strerror", None) or str(error)
         problem = text.splitlines()[0] if text else "no detail"
         raise DataError(path, "file", f"cannot be read as {dataset}: {type(error).__name__}: {problem}") from error
+    return sequence.imu_delay_removed(delay_s)
 
 
 def check_options(dataset: str, options: dict, where: str = "options") -> dict:
@@ -104,6 +111,7 @@ def check_options(dataset: str, options: dict, where: str = "options") -> dict:
     if parameters.pop("checks", None) is not None:  # a reader: its ReadChecks fields are options of their own
         unused = UNUSED_CHECKS.get(dataset, ())
         parameters |= {f.name: f.type for f in fields(ReadChecks) if f.name not in unused}
+        parameters[IMU_DELAY_OPTION] = "float"
     for key, value in options.items():
         if key not in parameters:
             raise ConfigError(
@@ -117,6 +125,10 @@ def check_options(dataset: str, options: dict, where: str = "options") -> dict:
             raise ConfigError(f"{where} '{key}': expected {annotation}, got {value!r} ({type(value).__name__})")
         if key in POSITIVE_OPTIONS and value is not None and not (math.isfinite(value) and value > 0):
             raise ConfigError(f"{where} '{key}': expected a positive number ({POSITIVE_OPTIONS[key]}), got {value!r}")
+        if key == IMU_DELAY_OPTION and not (math.isfinite(value) and abs(value) <= MAX_IMU_DELAY_S):
+            raise ConfigError(
+                f"{where} '{key}': expected a delay (s) within +-{MAX_IMU_DELAY_S:g}, got {value!r} (a value in ms?)"
+            )
     return dict(options)
 
 

@@ -95,11 +95,15 @@ class TrainedOn:
     """What a model was trained on: the median IMU rate of its training sequences (Hz), their reader names, and
     ``speed_m_s``, the highest ground-truth speed among them (the largest of each sequence's 99.9th percentile of
     ``|v|``, m/s; None where unknown: files written before it was recorded). A motion model's forward velocity is
-    not trusted above it (``fusion.config.MotionSettings.speed_envelope``)."""
+    not trusted above it (``fusion.config.MotionSettings.speed_envelope``). ``imu_delay_s``: how much later than
+    recorded its training sequences' IMU samples were read (s; the readers' ``imu_delay_s``, ``DataConfig.imu_delay_s``
+    of the stored config, not a key of the file); None where they differ. ``airimu fuse`` warns when a log is read
+    with another (``learned_imu.network.rate.check_imu_delay``)."""
 
     rate_hz: float
     datasets: tuple[str, ...]
     speed_m_s: float | None = None
+    imu_delay_s: float | None = 0.0
 
     def to_dict(self) -> dict:
         out = {"rate_hz": self.rate_hz, "datasets": list(self.datasets)}
@@ -234,11 +238,15 @@ def load_checkpoint(path: str | Path) -> Checkpoint:
     missing = [key for key in _REQUIRED if key not in payload]
     if missing:
         raise DataError(path, missing[0], "missing from the checkpoint")
+    config = _stored_config(payload["config"], path)
+    trained_on = _trained_on(payload.get("trained_on"), path)
+    if trained_on is not None:
+        trained_on = dataclasses.replace(trained_on, imu_delay_s=config.data.imu_delay_s)
     return Checkpoint(
-        config=_stored_config(payload["config"], path),
+        config=config,
         trainer=_trainer(payload["trainer"], path),
         best=_best(payload["best"], path),
-        trained_on=_trained_on(payload.get("trained_on"), path),
+        trained_on=trained_on,
         version=int(version),
         written_by=dict(payload.get("written_by") or {}),
     )

@@ -1,5 +1,6 @@
 """An IMU late against its ground truth's clock: ``measure_imu_delay`` finds the delay, ``FuseConfig.imu_delay_s``
-takes it out of the preintegration (``read_later``, as ``ImuSequence.imu_delay_removed``); KITTI's OXTS: ~50 ms."""
+takes it out of the preintegration (``read_later``, as ``ImuSequence.imu_delay_removed``), the readers'
+``imu_delay_s`` out of what is read (training and fusion alike); KITTI's OXTS: ~50 ms."""
 
 from __future__ import annotations
 
@@ -14,8 +15,10 @@ from airimu_core.errors import ConfigError, InputError
 from airimu_core.sequence import GroundTruth, ImuSequence
 from fusion.config import FuseConfig
 from fusion.online import OnlineFusion
+from learned_imu.config import SequenceConfig
 from learned_imu.datasets import read_sequence
 from learned_imu.evaluation.imu_delay import measure_imu_delay
+from learned_imu.network.rate import check_imu_delay
 
 RATE = 100.0
 SPEED = 10.0  # m/s
@@ -118,3 +121,56 @@ def test_euroc_imu_is_on_time(shared_data):
     without delay (``test_measure_imu_delay_finds_a_known_delay``)."""
     found = measure_imu_delay([read_sequence("euroc", shared_data / "euroc/V1_02_medium")])
     assert found.delay_s == pytest.approx(0.0025, abs=1e-3)
+
+
+def test_every_reader_takes_imu_delay_s_and_the_sequence_says_it(shared_data):
+    """The readers' ``imu_delay_s`` option: the samples ``imu_delay_removed`` gives (KITTI 2011_09_26_drive_0019, a
+    validation drive of configs/kitti_motion_loo.yaml), ``ImuSequence.imu_delay_s`` saying so through ``part``; a
+    value in ms, or the option on the simulator, is refused naming the key."""
+    path = shared_data / "kitti_raw/2011_09_26_drive_0019.csv"
+    options = {"on_backward": "drop", "on_duplicate": "drop", "on_gap": "keep"}
+    recorded = read_sequence("kitti_raw", path, **options)
+    late = read_sequence("kitti_raw", path, imu_delay_s=0.049, **options)
+    assert recorded.imu_delay_s == 0.0 and late.imu_delay_s == 0.049
+    np.testing.assert_array_equal(late.gyro, recorded.imu_delay_removed(0.049).gyro)
+    np.testing.assert_array_equal(late.acc, recorded.imu_delay_removed(0.049).acc)
+    assert np.abs(late.gyro - recorded.gyro).max() > 0.01  # it moved them (rad/s)
+    np.testing.assert_array_equal(late.t, recorded.t)
+    assert late.part(0.2, 0.6).imu_delay_s == 0.049 and late.bridge_gaps().imu_delay_s == 0.049
+    with pytest.raises(ConfigError, match=r"imu_delay_s': expected a delay \(s\) within \+-0.5, got 49"):
+        read_sequence("kitti_raw", path, imu_delay_s=49, **options)
+    with pytest.raises(ConfigError, match="simulator has no such option"):
+        SequenceConfig("simulator", options={"imu_delay_s": 0.05})
+
+
+def test_a_model_trained_on_delayed_samples_says_so_and_a_log_read_otherwise_is_warned_about(tmp_path, caplog):
+    """``TrainedOn.imu_delay_s`` comes from the stored config's training sequences (``DataConfig.imu_delay_s``;
+    None for a mix); ``airimu fuse`` warns, naming both delays, when the log is read with another."""
+    from learned_imu.config import DataConfig, ExperimentConfig, MotionConfig, TrainConfig
+    from learned_imu.network.checkpoint import (
+        Checkpoint,
+        TrainedOn,
+        build_motion_model,
+        motion_from_checkpoint,
+        save_checkpoint,
+    )
+
+    small = MotionConfig(conv_channels=(8, 16), gru_sizes=(16,), decoder_hidden=16)
+    late = SequenceConfig("kitti_raw", "a.csv", options={"imu_delay_s": 0.049})
+    data = DataConfig(train=(late, dataclasses.replace(late, path="b.csv")), val=(late,))
+    assert data.imu_delay_s == 0.049
+    assert dataclasses.replace(data, train=(late, SequenceConfig("kitti_raw", "c.csv"))).imu_delay_s is None
+    config = ExperimentConfig("late", data, motion=small, train=TrainConfig(model="motion"))
+    weights = build_motion_model(small).state_dict()
+    on = TrainedOn(rate_hz=RATE, datasets=("kitti_raw",))
+    path = save_checkpoint(tmp_path / "m.pt", Checkpoint(config, {"model": weights}, trained_on=on))
+    net = motion_from_checkpoint(path)[0]
+    assert net.trained_on.imu_delay_s == 0.049
+    seq = turning_car(0.0, duration_s=30.0)
+    caplog.set_level("WARNING")
+    check_imu_delay(net, seq.imu_delay_removed(0.049), "on time")
+    assert not caplog.records
+    check_imu_delay(net, seq, "car.csv")
+    message = caplog.records[-1].getMessage()
+    assert "car.csv: read with imu_delay_s 0.000 s" in message and "imu_delay_s 0.049 s" in message
+    assert "imu_delay_s=0.049" in message

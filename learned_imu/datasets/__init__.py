@@ -42,8 +42,8 @@ READERS: dict[str, Callable[..., ImuSequence]] = {
 UNUSED_CHECKS = {"kitti": kitti.UNUSED_CHECKS, "kitti_raw": kitti_raw.UNUSED_CHECKS, "broad": broad.UNUSED_CHECKS}
 
 
-# every reader's option: how late (s) the IMU's samples are against the clock of its ground truth (and GPS); the
-# sequence is read with them ``imu_delay_s`` later (``ImuSequence.imu_delay_removed``), for training and fusion alike
+# every reader's option: how late (s) the IMU's samples are against the clock of its ground truth (and GPS); each
+# sample is stamped that much earlier (``ImuSequence.imu_delay_removed``), for training and fusion alike
 IMU_DELAY_OPTION = "imu_delay_s"
 SPLIT = "split"  # a config's on_gap: read with "keep", then ImuSequence.split_at_gaps()
 SIMULATOR = "simulator"  # a config's sequence made by learned_imu.datasets.simulator.simulate instead of a reader
@@ -60,8 +60,8 @@ def read_sequence(dataset: str, path: str | Path | None = None, **options) -> Im
     record given flat (``on_gap="keep"``) and gathered into a ``ReadChecks`` here; ``path`` may be None only for
     ``"kitti"`` (gtsam's copy). Splitting at gaps is a step of its own: ``on_gap="keep"``, then
     ``ImuSequence.split_at_gaps()`` (a config's ``on_gap: split`` does both). Every reader also takes
-    ``imu_delay_s`` (``IMU_DELAY_OPTION``): the IMU's samples read that much later, on the ground truth's clock
-    (linear between samples, across a gap too: ``ImuSequence.imu_delay_removed``). A file the reader cannot parse at all
+    ``imu_delay_s`` (``IMU_DELAY_OPTION``): each IMU sample stamped that much earlier, on the ground truth's clock,
+    and the truth read at the new stamps (``ImuSequence.imu_delay_removed``). A file the reader cannot parse at all
     (zero bytes, random bytes, another format, no permission) is a ``DataError`` naming it; the parser's own
     exception is its ``__cause__``.
     """

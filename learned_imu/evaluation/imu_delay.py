@@ -2,12 +2,13 @@
 
 The delay d is where the gyro, read d later, best matches the ground truth's body rate: the rate of each pair of
 consecutive ground-truth rotations, ``Log(R_k^T R_k+1) / dt`` (rad/s, body frame), against the gyro at ``t_k + d``
-(linear between samples): the sample that ``ImuSequence.imu_delay_removed(d)`` puts at ``t_k``, which the
+(linear between samples): the sample that ``airimu_core.sequence.read_later`` puts at ``t_k``, which the
 preintegration applies over [t_k, t_k+1] (so an IMU without delay measures d = dt / 2, the rectangle rule's best
 sample). The score of a delay is the mean squared difference over every pair of
 valid ground truth without a gap between them, pooled over the sequences (a drive that turns much weighs more: a
 straight one hardly tells delays apart); searched on a 5-ms grid within ``+- max_s``, then to 0.5 ms around the best.
-A delay > 0: the IMU is late (``fusion.config.FuseConfig.imu_delay_s`` takes it out).
+A delay > 0: the IMU is late (the readers' ``imu_delay_s`` takes it out of what is read, ``FuseConfig.imu_delay_s``
+out of the preintegration).
 
 Measured on the KITTI raw drives' OXTS stream (``benchmarks/motion_kitti.py --measure-delay``, BENCHMARKS.md): the
 yaw rate lags the navigation solution of the same packet by ~60 ms on every drive that turns (x ~20, y ~50 ms).

@@ -1,6 +1,6 @@
 """An IMU late against its ground truth's clock: ``measure_imu_delay`` finds the delay, ``FuseConfig.imu_delay_s``
-takes it out of the preintegration (``read_later``, as ``ImuSequence.imu_delay_removed``), the readers'
-``imu_delay_s`` out of what is read (training and fusion alike); KITTI's OXTS: ~50 ms."""
+takes it out of the preintegration (``read_later``), the readers' ``imu_delay_s`` out of what is read
+(``ImuSequence.imu_delay_removed``: the samples restamped, for training and fusion alike); KITTI's OXTS: ~50 ms."""
 
 from __future__ import annotations
 
@@ -53,15 +53,26 @@ def turning_car(delay_s: float, duration_s: float = 60.0, seed: int = 0) -> ImuS
     return ImuSequence("turning car", t, gyro, acc, GRAVITY, gt, None, "test")
 
 
-def test_imu_delay_removed_reads_each_sample_later():
+def test_imu_delay_removed_restamps_the_samples_and_reads_the_truth_there():
     seq = turning_car(0.0, duration_s=5.0)
     assert seq.imu_delay_removed(0.0) is seq
     moved = seq.imu_delay_removed(0.025)  # two and a half samples
-    np.testing.assert_array_equal(moved.t, seq.t)
-    assert moved.gt is seq.gt
-    np.testing.assert_allclose(moved.gyro[:-3], 0.5 * (seq.gyro[2:-1] + seq.gyro[3:]), atol=1e-12)
-    np.testing.assert_allclose(moved.acc[:-3], 0.5 * (seq.acc[2:-1] + seq.acc[3:]), atol=1e-12)
-    np.testing.assert_array_equal(moved.gyro[-2:], np.repeat(seq.gyro[-1:], 2, axis=0))  # held past the end
+    np.testing.assert_allclose(moved.t, seq.t[3:] - 0.025, atol=1e-12)  # three new stamps before the recording
+    np.testing.assert_array_equal(moved.gyro, seq.gyro[3:])
+    np.testing.assert_array_equal(moved.acc, seq.acc[3:])
+    assert moved.imu_delay_s == 0.025 and moved.gt.valid.all()
+    # the truth half way between the samples around each new stamp
+    np.testing.assert_allclose(moved.gt.pos, 0.5 * (seq.gt.pos[:-3] + seq.gt.pos[1:-2]), atol=1e-12)
+    np.testing.assert_allclose(moved.gt.vel, 0.5 * (seq.gt.vel[:-3] + seq.gt.vel[1:-2]), atol=1e-12)
+    heading = np.unwrap(np.arctan2(seq.gt.rot[:, 1, 0], seq.gt.rot[:, 0, 0]))
+    moved_heading = np.unwrap(np.arctan2(moved.gt.rot[:, 1, 0], moved.gt.rot[:, 0, 0]))
+    np.testing.assert_allclose(moved_heading, 0.5 * (heading[:-3] + heading[1:-2]), atol=1e-12)
+    # a gap: the truth at a new stamp inside it is not valid (the three samples after it), the rest is
+    keep = np.r_[0:200, 231 : len(seq)]
+    truth = GroundTruth(seq.gt.rot[keep], seq.gt.pos[keep], seq.gt.vel[keep], seq.gt.valid[keep])
+    gappy = ImuSequence("gap", seq.t[keep], seq.gyro[keep], seq.acc[keep], GRAVITY, truth, None, "test")
+    valid = gappy.imu_delay_removed(0.025).gt.valid
+    assert np.flatnonzero(~valid).tolist() == [197, 198, 199]
 
 
 def test_measure_imu_delay_finds_a_known_delay():
@@ -124,18 +135,20 @@ def test_euroc_imu_is_on_time(shared_data):
 
 
 def test_every_reader_takes_imu_delay_s_and_the_sequence_says_it(shared_data):
-    """The readers' ``imu_delay_s`` option: the samples ``imu_delay_removed`` gives (KITTI 2011_09_26_drive_0019, a
-    validation drive of configs/kitti_motion_loo.yaml), ``ImuSequence.imu_delay_s`` saying so through ``part``; a
-    value in ms, or the option on the simulator, is refused naming the key."""
+    """The readers' ``imu_delay_s`` option: the sequence ``imu_delay_removed`` gives (KITTI 2011_09_26_drive_0019, a
+    validation drive of configs/kitti_motion_loo.yaml: the samples as recorded, stamped 49 ms earlier),
+    ``ImuSequence.imu_delay_s`` saying so through ``part``; a value in ms, or the option on the simulator, is refused
+    naming the key."""
     path = shared_data / "kitti_raw/2011_09_26_drive_0019.csv"
     options = {"on_backward": "drop", "on_duplicate": "drop", "on_gap": "keep"}
     recorded = read_sequence("kitti_raw", path, **options)
     late = read_sequence("kitti_raw", path, imu_delay_s=0.049, **options)
     assert recorded.imu_delay_s == 0.0 and late.imu_delay_s == 0.049
-    np.testing.assert_array_equal(late.gyro, recorded.imu_delay_removed(0.049).gyro)
-    np.testing.assert_array_equal(late.acc, recorded.imu_delay_removed(0.049).acc)
-    assert np.abs(late.gyro - recorded.gyro).max() > 0.01  # it moved them (rad/s)
-    np.testing.assert_array_equal(late.t, recorded.t)
+    dropped = len(recorded) - len(late)
+    assert 4 <= dropped <= 6  # the samples stamped before the recording began (100 Hz)
+    np.testing.assert_array_equal(late.gyro, recorded.gyro[dropped:])
+    np.testing.assert_array_equal(late.t, recorded.t[dropped:] - 0.049)
+    np.testing.assert_array_equal(late.gt.pos, recorded.imu_delay_removed(0.049).gt.pos)
     assert late.part(0.2, 0.6).imu_delay_s == 0.049 and late.bridge_gaps().imu_delay_s == 0.049
     with pytest.raises(ConfigError, match=r"imu_delay_s': expected a delay \(s\) within \+-0.5, got 49"):
         read_sequence("kitti_raw", path, imu_delay_s=49, **options)

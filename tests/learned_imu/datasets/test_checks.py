@@ -275,8 +275,9 @@ def test_flat_options_reach_the_reader_as_one_record(tmp_path, monkeypatch):
         (
             {"checks": {}},
             "options 'checks': euroc has no such option; its options: check_frame, check_units, "
-            "crop_to_gt, gravity, ground_truth, gt_file, imu_file, on_duplicate, on_gap, vel_window_s",
+            "crop_to_gt, gravity, ground_truth, gt_file, imu_delay_s, imu_file, on_duplicate, on_gap, vel_window_s",
         ),
+        ({"imu_delay_s": 50}, "options 'imu_delay_s': expected a delay (s) within +-0.5, got 50 (a value in ms?)"),
     ],
 )
 def test_config_options_are_checked_against_the_record(options, message):

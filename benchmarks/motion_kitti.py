@@ -85,9 +85,12 @@ log = logging.getLogger("motion_kitti")
 
 
 def sequence_range(seq, drive_csv: Path, first: int, last: int):
-    """The drive ``seq`` cut to AI-IMU's rows [first, last] of the CSV (by time: the reader drops replayed rows)."""
+    """The drive ``seq`` cut to AI-IMU's rows [first, last] of the CSV (by time: the reader drops replayed rows),
+    from its first sample with ground truth (the start state): a drive read with an IMU delay (``imu_delay_s``) has
+    none on the samples restamped into a gap (2011_10_03_drive_0027 begins with a 1.9-s one)."""
     t = np.loadtxt(drive_csv, delimiter=",", comments="#", usecols=0)
-    return seq.between(t[first], t[min(last, len(t) - 1)])
+    part = seq.between(t[first], t[min(last, len(t) - 1)])
+    return part.between(part.t[int(np.argmax(part.gt.valid))], part.t[-1])
 
 
 def truth_rows(seq, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -95,9 +95,9 @@ class TrainedOn:
     """What a model was trained on: the median IMU rate of its training sequences (Hz), their reader names, and
     ``speed_m_s``, the highest ground-truth speed among them (the largest of each sequence's 99.9th percentile of
     ``|v|``, m/s; None where unknown: files written before it was recorded). A motion model's forward velocity is
-    not trusted above it (``fusion.config.MotionSettings.speed_envelope``). ``imu_delay_s``: how much later than
-    recorded its training sequences' IMU samples were read (s; the readers' ``imu_delay_s``, ``DataConfig.imu_delay_s``
-    of the stored config, not a key of the file); None where they differ. ``airimu fuse`` warns when a log is read
+    not trusted above it (``fusion.config.MotionSettings.speed_envelope``). ``imu_delay_s``: the IMU delay (s)
+    its training sequences were read with (the readers' ``imu_delay_s``, ``DataConfig.imu_delay_s`` of the stored
+    config, not a key of the file); None where they differ. ``airimu fuse`` warns when a log is read
     with another (``learned_imu.network.rate.check_imu_delay``)."""
 
     rate_hz: float

@@ -11,6 +11,7 @@ Conventions, for every record in this module:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -112,6 +113,13 @@ class GpsFixes:
 
 
 MAX_IMU_DELAY_S = 0.5  # an IMU delay (s) larger than this is a unit mistake or a clock that needs fixing upstream
+
+
+def is_imu_delay(value) -> bool:
+    """Is ``value`` an IMU delay: a finite number of seconds (not a bool) within +-``MAX_IMU_DELAY_S`` (the readers'
+    and ``FuseConfig``'s ``imu_delay_s``)?"""
+    number = isinstance(value, int | float) and not isinstance(value, bool)
+    return number and math.isfinite(value) and abs(value) <= MAX_IMU_DELAY_S
 
 
 def read_later(t: np.ndarray, values: np.ndarray, delay_s: float) -> np.ndarray:

@@ -20,7 +20,7 @@ import numpy as np
 
 from airimu_core.config import check_noise_density, config_path, from_dict, read_yaml
 from airimu_core.errors import ConfigError
-from airimu_core.sequence import GPS_SIGMA_UNKNOWN_M, MAX_IMU_DELAY_S
+from airimu_core.sequence import GPS_SIGMA_UNKNOWN_M, MAX_IMU_DELAY_S, is_imu_delay
 
 
 @dataclass(frozen=True)
@@ -298,7 +298,7 @@ class FuseConfig:
             raise ConfigError(f"still_start must be true or false, got {self.still_start!r}")
         if self.imu_gaps not in IMU_GAPS:
             raise ConfigError(f"imu_gaps must be one of {', '.join(IMU_GAPS)}, got {self.imu_gaps!r}")
-        if not (_is_number(self.imu_delay_s) and abs(self.imu_delay_s) <= MAX_IMU_DELAY_S):
+        if not is_imu_delay(self.imu_delay_s):
             raise ConfigError(
                 f"imu_delay_s must be a delay (s) within +-{MAX_IMU_DELAY_S:g}, got {self.imu_delay_s!r} (a value in "
                 "ms?)"

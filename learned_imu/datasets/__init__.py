@@ -17,7 +17,7 @@ from collections.abc import Callable
 from dataclasses import fields
 from pathlib import Path
 
-from airimu_core.sequence import MAX_IMU_DELAY_S, ImuSequence
+from airimu_core.sequence import MAX_IMU_DELAY_S, ImuSequence, is_imu_delay
 from airimu_core.table import check_input_size
 from learned_imu.datasets import broad, kitti, kitti_raw
 from learned_imu.datasets._assemble import ReadChecks
@@ -125,7 +125,7 @@ def check_options(dataset: str, options: dict, where: str = "options") -> dict:
             raise ConfigError(f"{where} '{key}': expected {annotation}, got {value!r} ({type(value).__name__})")
         if key in POSITIVE_OPTIONS and value is not None and not (math.isfinite(value) and value > 0):
             raise ConfigError(f"{where} '{key}': expected a positive number ({POSITIVE_OPTIONS[key]}), got {value!r}")
-        if key == IMU_DELAY_OPTION and not (math.isfinite(value) and abs(value) <= MAX_IMU_DELAY_S):
+        if key == IMU_DELAY_OPTION and not is_imu_delay(value):
             raise ConfigError(
                 f"{where} '{key}': expected a delay (s) within +-{MAX_IMU_DELAY_S:g}, got {value!r} (a value in ms?)"
             )

@@ -209,7 +209,8 @@ def fuse(
         motion_model: a ``MotionNet`` (``motion_from_checkpoint(...)[0]``): learned body-frame velocity factors at
             the keyframes (``config.motion``), the model reading the attitude of the previous solution.
         start: the state at the log's first IMU sample, a ``gtsam.NavState`` (pose world <- IMU, world velocity
-            m/s), or ``"ground-truth"`` (the sequence's); default: aligned to the GPS track.
+            m/s), or ``"ground-truth"`` (the sequence's; a log that begins without truth starts at its first sample
+            with it, the samples before dropped); default: aligned to the GPS track.
         outages: (start, duration) pairs, s from the log's first sample: the fixes inside are not fused.
         trust_model: fuse with ``model`` even where its corrected samples fit the GPS track far worse than the raw
             ones (``check_model_against_raw``, which names ``model_source``, e.g. the checkpoint, otherwise).
@@ -218,6 +219,13 @@ def fuse(
 
     config = config or FuseConfig()
     where = sequence.source or sequence.name
+    if config.imu_delay_s and sequence.imu_delay_s:
+        raise InputError(
+            f"fuse: {where} was read with the readers' imu_delay_s ({sequence.imu_delay_s:g} s) and the fuse config "
+            f"gives imu_delay_s ({config.imu_delay_s:g} s): they would add up; give one of them"
+        )
+    t0 = float(sequence.t[0])  # outages count from the log's first sample, wherever the run starts
+    sequence = _from_first_truth(sequence, start, where)
     if config.imu_gaps == "interpolate":
         bridged = sequence.bridge_gaps()
         if bridged is not sequence:
@@ -230,7 +238,7 @@ def fuse(
         )
     initial_state = _start_state(sequence, start)
     if fixes is not None and len(fixes.t):
-        fixes = _outside_outages(fixes, sequence.t[0], outages)
+        fixes = _outside_outages(fixes, t0, outages)
     if fixes is None or len(fixes.t) == 0:
         fixes = None
         if initial_state is None:
@@ -283,7 +291,7 @@ def fuse(
         _blame_given_noise(sequence, config.noise_density, result.residuals)
     ends = []
     for begin, duration in outages:  # what a causal estimator believes when the outage ends: the log up to then
-        end = min(float(sequence.t[0]) + begin + duration, float(sequence.t[-1]))
+        end = min(t0 + begin + duration, float(sequence.t[-1]))
         head = sequence.until(end)
         cut = len(head.t)
         part = Correction(*(getattr(correction, f.name)[:cut] for f in dataclasses.fields(Correction)))
@@ -340,6 +348,24 @@ def _delay_removed(correction: Correction, t: np.ndarray, delay_s: float) -> Cor
         return torch.as_tensor(read_later(t, x.detach().cpu().numpy(), delay_s), dtype=x.dtype)
 
     return dataclasses.replace(correction, gyro=later(correction.gyro), acc=later(correction.acc))
+
+
+def _from_first_truth(sequence: ImuSequence, start, where: str) -> ImuSequence:
+    """``sequence`` from its first sample with ground truth when the run starts at the truth (``start`` is
+    ``"ground-truth"``) and the log begins without it (a gap at the start, or samples restamped by the readers'
+    ``imu_delay_s`` before the truth begins); otherwise ``sequence`` itself."""
+    gt = sequence.gt
+    if not isinstance(start, str) or start != "ground-truth" or gt is None or gt.valid[0] or not gt.valid.any():
+        return sequence
+    first = int(np.argmax(gt.valid))
+    log.warning(
+        "%s: no ground truth for the first %.2f s (%d samples): the run starts at the first sample with it, t = %.3f s",
+        where,
+        sequence.t[first] - sequence.t[0],
+        first,
+        sequence.t[first],
+    )
+    return sequence.between(float(sequence.t[first]), float(sequence.t[-1]))
 
 
 def _start_state(sequence: ImuSequence, start):

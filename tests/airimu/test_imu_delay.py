@@ -105,6 +105,32 @@ def test_fuse_takes_a_measured_delay_out():
     assert end_error(late, delay) < 1.05 * on_time, (on_time, end_error(late, delay))
 
 
+def test_fuse_refuses_a_delay_given_twice():
+    """The readers' option and ``FuseConfig.imu_delay_s`` would add up: refused, naming both values."""
+    read = turning_car(0.05, duration_s=5.0).imu_delay_removed(0.05)
+    config = FuseConfig(gyro_noise_density=1e-5, acc_noise_density=1e-4, keyframe_s=1.0, imu_delay_s=0.05)
+    with pytest.raises(InputError, match=r"readers' imu_delay_s \(0.05 s\) and the fuse config .*0.05 s.*add up"):
+        fuse(read, None, None, config, start="ground-truth")
+
+
+def test_a_ground_truth_start_begins_at_the_first_sample_with_truth(caplog):
+    """A log that begins without truth (KITTI seq 00's drive: a 1.9-s gap first) starts at its first sample with
+    truth, from the truth there, and says so; outages still count from the log's first sample."""
+    seq = turning_car(0.0, duration_s=10.0)
+    gt = dataclasses.replace(seq.gt, valid=np.arange(len(seq)) >= 150)
+    seq = dataclasses.replace(seq, gt=gt)
+    config = FuseConfig(gyro_noise_density=1e-5, acc_noise_density=1e-4, keyframe_s=1.0)
+    with caplog.at_level("WARNING"):
+        result = fuse(seq, None, None, config, start="ground-truth", outages=((3.0, 2.0),))
+    assert "no ground truth for the first 1.50 s (150 samples)" in caplog.text
+    assert result.sequence.t[0] == seq.t[150]
+    traj = result.solution.trajectory
+    np.testing.assert_allclose(traj.pos[0], seq.gt.pos[150], atol=1e-6)
+    assert abs(result.outage_ends[0][0] - 5.0) < 0.02  # 3 + 2 s from the log's first sample, not the run's
+    later = fuse(seq.between(float(seq.t[150]), float(seq.t[-1])), None, None, config, start="ground-truth")
+    np.testing.assert_allclose(traj.pos, later.solution.trajectory.pos, atol=1e-9)  # the log cut there
+
+
 def test_imu_delay_s_is_checked_and_batch_only():
     assert FuseConfig().imu_delay_s == 0.0
     for bad in (55.0, -0.6, float("nan"), True, "0.05"):

@@ -99,9 +99,12 @@ def main() -> None:
     parser.add_argument(
         "--cov-scale", type=float, nargs="+", default=[MotionSettings.cov_scale], help="motion.cov_scale: 1 or 3"
     )
+    parser.add_argument(
+        "--estimate-bias", action="store_true", help="FuseConfig.estimate_bias: bias states in the graph"
+    )
     args = parser.parse_args()
     motion = MotionSettings(args.keyframe_s, args.passes, tuple(args.cov_scale))
-    fuse_config = with_start_and_scale(FuseConfig(motion=motion), args)
+    fuse_config = with_start_and_scale(FuseConfig(motion=motion, estimate_bias=args.estimate_bias), args)
     model, _ = model_from_checkpoint(args.checkpoint)
     net, _ = motion_from_checkpoint(args.motion)
     config = load_config(args.config)

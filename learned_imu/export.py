@@ -39,7 +39,9 @@ def merge_keyframes(required: np.ndarray, extra: np.ndarray) -> np.ndarray:
     """Keyframe sample indices: every one of ``required`` (e.g. the samples of the GPS fixes, so that each fix
     constrains the state at its own time) and those of ``extra`` (e.g. a regular grid) that lie at least two samples
     from every required one (an interval needs two samples). Required indices closer than two samples to the
-    previous kept one are left out too: the fix there attaches to a keyframe one sample away."""
+    previous kept one are left out too: the fix there attaches to a keyframe one sample away. Of two ``extra``
+    indices closer than two samples (two grids, e.g. 1 s and 0.09 s at 100 Hz: samples 99 and 100), the later is left
+    out."""
     kept: list[int] = []
     for i in np.unique(np.asarray(required, dtype=np.int64)):
         if not kept or i - kept[-1] >= 2:
@@ -51,7 +53,11 @@ def merge_keyframes(required: np.ndarray, extra: np.ndarray) -> np.ndarray:
         after = np.abs(fixed[np.minimum(at, len(fixed) - 1)] - extra)
         before = np.abs(extra - fixed[np.maximum(at - 1, 0)])
         extra = extra[np.minimum(before, after) >= 2]
-    return np.union1d(fixed, extra)
+    merged: list[int] = []
+    for i in np.union1d(fixed, extra).tolist():  # a required one is two or more from every extra left
+        if not merged or i - merged[-1] >= 2:
+            merged.append(i)
+    return np.asarray(merged, dtype=np.int64)
 
 
 def export_preintegration(

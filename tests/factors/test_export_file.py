@@ -176,3 +176,16 @@ def test_keyframe_specs_that_cannot_give_two_keyframes_name_the_recording(tmp_pa
     times.write_text(f"{float(seq.t[100])!r}\n")
     with pytest.raises(DataError, match="1 keyframe time"):
         keyframes_from_spec(seq, str(times))
+
+
+def test_merged_keyframes_keep_every_fix_and_two_samples_between_any_two():
+    """``merge_keyframes``: a fix's sample always (one a sample after another fix is dropped), a grid's only two or
+    more samples from every fix, and of two grids' indices a sample apart (1 s and 0.09 s at 100 Hz: 99 and 100) the
+    later left out, so no interval is a single sample (``preintegration_export`` refuses those)."""
+    from learned_imu.export import merge_keyframes
+
+    merged = merge_keyframes(np.array([0, 50, 51]), np.array([2, 49, 99, 100, 150, 100]))
+    np.testing.assert_array_equal(merged, [0, 2, 50, 99, 150])
+    grids = np.concatenate([np.arange(0, 1000, 100), np.arange(0, 1000, 9)])
+    merged = merge_keyframes(np.zeros(1, dtype=int), grids)
+    assert np.diff(merged).min() >= 2 and merged[0] == 0 and len(merged) > 100

@@ -101,13 +101,23 @@ def truth_rows(seq, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def scores(seq, result) -> dict:
-    """t_rel / r_rel of a fused result against the ground truth, at 10 Hz."""
+    """t_rel / r_rel of a fused result against the ground truth, at 10 Hz; and where they come from: the RMS of the
+    heading error (deg) and the mean of the speed error (m/s, estimate minus truth) over the same samples."""
     dense = imu_rate_trajectory(result)
     at, keep = truth_rows(seq, dense.t)
     t, at = dense.t[keep], at[keep]
     pick = ticks_10hz(t)
     errors = relative_errors(seq.gt.rot[at[pick]], seq.gt.pos[at[pick]], dense.rot[keep][pick], dense.pos[keep][pick])
-    return {"t_rel_percent": round(errors.t_rel_percent, 3), "r_rel_deg_per_m": round(errors.r_rel_deg_per_m, 5)}
+    rot, vel = dense.rot[keep][pick], dense.vel[keep][pick]
+    off = np.einsum("nji,njk->nik", seq.gt.rot[at[pick]], rot)  # truth^T estimate
+    heading = np.degrees(np.arctan2(off[:, 1, 0], off[:, 0, 0]))
+    speed = np.linalg.norm(vel, axis=1) - np.linalg.norm(seq.gt.vel[at[pick]], axis=1)
+    return {
+        "t_rel_percent": round(errors.t_rel_percent, 3),
+        "r_rel_deg_per_m": round(errors.r_rel_deg_per_m, 5),
+        "heading_rms_deg": round(float(np.sqrt(np.mean(heading**2))), 3),
+        "speed_error_mean_m_s": round(float(speed.mean()), 3),
+    }
 
 
 def ticks_10hz(t: np.ndarray) -> np.ndarray:

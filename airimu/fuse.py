@@ -379,7 +379,8 @@ def _start_state(sequence: ImuSequence, start):
             raise InputError(f"fuse: start must be a gtsam.NavState or 'ground-truth', got {start!r}")
         gt = sequence.gt
         if gt is None or not gt.valid[0]:
-            raise DataError(sequence.source or sequence.name, "ground truth", "no ground truth at the first sample")
+            why = "the log has none" if gt is None else "no sample of the log has it"
+            raise DataError(sequence.source or sequence.name, "ground truth", f"--start ground-truth: {why}")
         return gtsam.NavState(gtsam.Rot3(gt.rot[0]), gt.pos[0], gt.vel[0])
     if not isinstance(start, gtsam.NavState):
         raise InputError(f"fuse: start must be a gtsam.NavState or 'ground-truth', got {type(start).__name__}")

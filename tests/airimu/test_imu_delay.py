@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from airimu.fuse import fuse
-from airimu_core.errors import ConfigError, InputError
+from airimu_core.errors import ConfigError, DataError, InputError
 from airimu_core.sequence import GroundTruth, ImuSequence
 from fusion.config import FuseConfig
 from fusion.online import OnlineFusion
@@ -127,6 +127,9 @@ def test_a_ground_truth_start_begins_at_the_first_sample_with_truth(caplog):
     traj = result.solution.trajectory
     np.testing.assert_allclose(traj.pos[0], seq.gt.pos[150], atol=1e-6)
     assert abs(result.outage_ends[0][0] - 5.0) < 0.02  # 3 + 2 s from the log's first sample, not the run's
+    blind = dataclasses.replace(seq, gt=dataclasses.replace(gt, valid=np.zeros(len(seq), dtype=bool)))
+    with pytest.raises(DataError, match="field 'ground truth': --start ground-truth: no sample of the log has it"):
+        fuse(blind, None, None, config, start="ground-truth")
     later = fuse(seq.between(float(seq.t[150]), float(seq.t[-1])), None, None, config, start="ground-truth")
     np.testing.assert_allclose(traj.pos, later.solution.trajectory.pos, atol=1e-9)  # the log cut there
 

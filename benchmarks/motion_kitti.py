@@ -107,11 +107,11 @@ def scores(seq, result) -> dict:
     at, keep = truth_rows(seq, dense.t)
     t, at = dense.t[keep], at[keep]
     pick = ticks_10hz(t)
-    errors = relative_errors(seq.gt.rot[at[pick]], seq.gt.pos[at[pick]], dense.rot[keep][pick], dense.pos[keep][pick])
-    rot, vel = dense.rot[keep][pick], dense.vel[keep][pick]
-    off = np.einsum("nji,njk->nik", seq.gt.rot[at[pick]], rot)  # truth^T estimate
+    truth, est = at[pick], np.flatnonzero(keep)[pick]  # rows of the truth and of the estimate at the 10-Hz ticks
+    errors = relative_errors(seq.gt.rot[truth], seq.gt.pos[truth], dense.rot[est], dense.pos[est])
+    off = np.einsum("nij,nkj->nik", dense.rot[est], seq.gt.rot[truth])  # estimate truth^T: the world-frame error
     heading = np.degrees(np.arctan2(off[:, 1, 0], off[:, 0, 0]))
-    speed = np.linalg.norm(vel, axis=1) - np.linalg.norm(seq.gt.vel[at[pick]], axis=1)
+    speed = np.linalg.norm(dense.vel[est], axis=1) - np.linalg.norm(seq.gt.vel[truth], axis=1)
     return {
         "t_rel_percent": round(errors.t_rel_percent, 3),
         "r_rel_deg_per_m": round(errors.r_rel_deg_per_m, 5),
